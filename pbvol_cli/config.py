@@ -1,0 +1,615 @@
+"""Scene and material files: Pydantic models, TOML in and out, and one-line errors.
+
+Conventions (also in the README):
+- Lengths are in scene units; a scene states what one unit is (``unit = "mm"`` etc.).
+- A material gives, per RGB channel, either (albedo, mean_free_path), (sigma_a, sigma_s), or
+  (sigma_s_reduced, sigma_a) as in Jensen et al. 2001, where sigma_s = sigma_s_reduced / (1 - g).
+  Its ``length_unit`` says what length its coefficients refer to ("scene" takes them as they are);
+  ``scale`` multiplies sigma_a and sigma_s (a density scale).
+- Colours and coefficients accept a single number (grey) or three (RGB).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any, ClassVar, Literal, Union
+
+import numpy as np
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+
+from pbvol_cli.errors import ConfigError
+
+# Lengths of the units a scene or a material may be expressed in, in metres.
+UNIT_METRES = {"mm": 1e-3, "cm": 1e-2, "m": 1.0, "um": 1e-6, "in": 0.0254}
+PHASE_FUNCTIONS = ("isotropic", "hg", "schlick", "rayleigh", "mie_hazy", "mie_murky")
+
+
+def _rgb(value: Any) -> Any:
+    """Accept a scalar (grey) or a length-3 sequence."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return [float(value)] * 3
+    return value
+
+
+RGB = Annotated[tuple[float, float, float], BeforeValidator(_rgb)]
+Vec3 = tuple[float, float, float]
+
+
+def _finite(v: tuple[float, ...], what: str) -> tuple[float, ...]:
+    if not all(math.isfinite(x) for x in v):
+        raise ValueError(f"expected finite {what}, got {list(v)}")
+    return v
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+# --------------------------------------------------------------------------- materials
+
+
+class Material(Strict):
+    """A homogeneous medium. See the module docstring for the accepted parameterisations."""
+
+    name: str | None = None
+    source: str | None = None
+    length_unit: Literal["scene", "mm", "cm", "m", "um", "in"] = "scene"
+    albedo: RGB | None = None
+    mean_free_path: RGB | None = None
+    sigma_a: RGB | None = None
+    sigma_s: RGB | None = None
+    sigma_s_reduced: RGB | None = None
+    g: float = 0.0
+    phase: Literal["isotropic", "hg", "schlick", "rayleigh", "mie_hazy", "mie_murky"] = "hg"
+    eta: float = 1.0
+    scale: float = 1.0
+    diffuse_reflectance: RGB | None = None  # informational (Jensen et al. 2001 table)
+
+    @field_validator("albedo")
+    @classmethod
+    def _albedo(cls, v):
+        if v is not None and not all(0.0 <= a <= 1.0 for a in v):
+            raise ValueError(f"expected albedo in [0, 1] per channel, got {list(v)}")
+        return v
+
+    @field_validator("mean_free_path")
+    @classmethod
+    def _mfp(cls, v):
+        if v is not None and not all(math.isfinite(x) and x > 0 for x in v):
+            raise ValueError(f"expected positive lengths, got {list(v)}")
+        return v
+
+    @field_validator("sigma_a", "sigma_s", "sigma_s_reduced")
+    @classmethod
+    def _sigma(cls, v):
+        if v is not None and not all(math.isfinite(x) and x >= 0 for x in v):
+            raise ValueError(f"expected non-negative coefficients, got {list(v)}")
+        return v
+
+    @field_validator("g")
+    @classmethod
+    def _g(cls, v):
+        if not (math.isfinite(v) and -1.0 < v < 1.0):
+            raise ValueError(f"expected |g| < 1, got {v}")
+        return v
+
+    @field_validator("eta")
+    @classmethod
+    def _eta(cls, v):
+        if not (math.isfinite(v) and v > 0):
+            raise ValueError(f"expected eta > 0, got {v}")
+        return v
+
+    @field_validator("scale")
+    @classmethod
+    def _scale(cls, v):
+        if not (math.isfinite(v) and v > 0):
+            raise ValueError(f"expected scale > 0, got {v}")
+        return v
+
+    # The accepted parameterisations, each a pair of fields.
+    FORMS: ClassVar[dict[str, tuple[str, str]]] = {
+        "albedo": ("albedo", "mean_free_path"),
+        "sigma": ("sigma_a", "sigma_s"),
+        "reduced": ("sigma_s_reduced", "sigma_a"),
+    }
+
+    def _form(self) -> str | None:
+        """Which parameterisation is complete (sigma_s_reduced takes precedence over sigma_s)."""
+        if self.sigma_s_reduced is not None and self.sigma_a is not None:
+            return "reduced"
+        for key, (a, b) in self.FORMS.items():
+            if getattr(self, a) is not None and getattr(self, b) is not None:
+                return key
+        return None
+
+    @model_validator(mode="after")
+    def _one_form(self):
+        names = ", ".join(f"({a}, {b})" for a, b in self.FORMS.values())
+        form = self._form()
+        if form is None:
+            raise ValueError(f"expected exactly one of {names}")
+        used = set(self.FORMS[form])
+        stray = [f for f in ("albedo", "mean_free_path", "sigma_a", "sigma_s", "sigma_s_reduced")
+                 if f not in used and getattr(self, f) is not None]
+        if stray:
+            raise ValueError(f"{', '.join(stray)} cannot be combined with {self.FORMS[form]}; "
+                             f"expected exactly one of {names}")
+        return self
+
+    def coefficients(self, scene_unit: str = "scene") -> tuple[np.ndarray, np.ndarray]:
+        """(sigma_a, sigma_s) per RGB channel, in 1/scene-unit (float64 arrays of 3)."""
+        form = self._form()
+        if form == "albedo":
+            alb = np.asarray(self.albedo, float)
+            st = 1.0 / np.asarray(self.mean_free_path, float)
+            sa, ss = st * (1.0 - alb), st * alb
+        elif form == "reduced":
+            sa = np.asarray(self.sigma_a, float)
+            ss = np.asarray(self.sigma_s_reduced, float) / (1.0 - self.g)
+        else:
+            sa, ss = np.asarray(self.sigma_a, float), np.asarray(self.sigma_s, float)
+        factor = self.scale * length_conversion(self.length_unit, scene_unit)
+        return sa * factor, ss * factor
+
+
+def length_conversion(material_unit: str, scene_unit: str) -> float:
+    """Factor turning a coefficient per material_unit into one per scene_unit."""
+    if material_unit == "scene" or scene_unit == "scene":
+        if material_unit != scene_unit and material_unit != "scene":
+            raise ValueError(
+                f"material coefficients are per {material_unit} but the scene has no physical unit; "
+                "set the scene's 'unit'"
+            )
+        return 1.0
+    # sigma [1/mat] -> [1/scene]: one scene unit is UNIT[scene]/UNIT[mat] material units.
+    return UNIT_METRES[scene_unit] / UNIT_METRES[material_unit]
+
+
+# --------------------------------------------------------------------------- camera, settings
+
+
+class Camera(Strict):
+    position: Vec3
+    look_at: Vec3
+    up: Vec3 = (0.0, 1.0, 0.0)
+    fov: float = Field(40.0, description="full vertical field of view, degrees")
+    resolution: tuple[int, int] = (256, 256)
+
+    @field_validator("fov")
+    @classmethod
+    def _fov(cls, v):
+        if not 0.0 < v < 180.0:
+            raise ValueError(f"expected a field of view in (0, 180) degrees, got {v}")
+        return v
+
+    @field_validator("resolution")
+    @classmethod
+    def _res(cls, v):
+        if not all(1 <= x <= 16384 for x in v):
+            raise ValueError(f"expected [width, height] between 1 and 16384, got {list(v)}")
+        return v
+
+    @model_validator(mode="after")
+    def _geometry(self):
+        _finite(self.position, "position")
+        d = np.subtract(self.look_at, self.position)
+        if np.linalg.norm(d) == 0:
+            raise ValueError("look_at must differ from position")
+        if np.linalg.norm(np.cross(d, self.up)) < 1e-9 * np.linalg.norm(d) * max(np.linalg.norm(self.up), 1e-30):
+            raise ValueError("up must not be parallel to the viewing direction")
+        return self
+
+
+class VolpathSettings(Strict):
+    rr_depth: int = Field(8, ge=0, description="bounce count from which Russian roulette applies")
+    batch_paths: int = Field(1 << 19, ge=1024, description="paths traced per wavefront batch")
+
+
+class RenderSettings(Strict):
+    spp: int = Field(64, ge=1)
+    max_depth: int = Field(1000, ge=1, description="maximum number of scattering events and surface bounces")
+    seed: int = Field(0, ge=0)
+    threads: int | None = Field(None, ge=1)
+    time_limit: float | None = Field(None, gt=0, description="seconds; stops after the batch that passes it")
+    volpath: VolpathSettings = VolpathSettings()
+
+
+# --------------------------------------------------------------------------- lights
+
+
+class PointLight(Strict):
+    type: Literal["point"]
+    position: Vec3
+    intensity: RGB  # W/sr
+
+
+class DirectionalLight(Strict):
+    type: Literal["directional"]
+    direction: Vec3  # direction the light travels
+    irradiance: RGB  # W/m^2 on a surface facing it
+
+    @field_validator("direction")
+    @classmethod
+    def _nz(cls, v):
+        if np.linalg.norm(v) == 0:
+            raise ValueError("expected a non-zero direction")
+        return v
+
+
+class SphereLight(Strict):
+    type: Literal["sphere"]
+    center: Vec3
+    radius: float = Field(gt=0)
+    radiance: RGB | None = None
+    power: RGB | None = None  # total emitted flux, W
+
+    @model_validator(mode="after")
+    def _one(self):
+        if (self.radiance is None) == (self.power is None):
+            raise ValueError("give exactly one of radiance, power")
+        return self
+
+    def emitted_radiance(self) -> np.ndarray:
+        if self.radiance is not None:
+            return np.asarray(self.radiance, float)
+        return np.asarray(self.power, float) / (math.pi * 4.0 * math.pi * self.radius**2)
+
+
+class QuadLight(Strict):
+    """A parallelogram ``corner + s*edge1 + t*edge2``, emitting on the side of edge1 x edge2."""
+
+    type: Literal["quad"]
+    corner: Vec3
+    edge1: Vec3
+    edge2: Vec3
+    radiance: RGB | None = None
+    power: RGB | None = None
+    two_sided: bool = False
+
+    @model_validator(mode="after")
+    def _one(self):
+        if (self.radiance is None) == (self.power is None):
+            raise ValueError("give exactly one of radiance, power")
+        if np.linalg.norm(np.cross(self.edge1, self.edge2)) == 0:
+            raise ValueError("edge1 and edge2 must span a non-zero area")
+        return self
+
+    def area(self) -> float:
+        return float(np.linalg.norm(np.cross(self.edge1, self.edge2)))
+
+    def emitted_radiance(self) -> np.ndarray:
+        if self.radiance is not None:
+            return np.asarray(self.radiance, float)
+        sides = 2.0 if self.two_sided else 1.0
+        return np.asarray(self.power, float) / (math.pi * self.area() * sides)
+
+
+class EnvironmentLight(Strict):
+    type: Literal["environment"]
+    radiance: RGB
+
+
+Light = Annotated[
+    Union[PointLight, DirectionalLight, SphereLight, QuadLight, EnvironmentLight],
+    Field(discriminator="type"),
+]
+
+
+# --------------------------------------------------------------------------- shapes
+
+MediumRef = Union[str, Material]
+
+
+class Transform(Strict):
+    """Applied as scale, then rotate (Euler angles in degrees about x, then y, then z), then translate."""
+
+    translate: Vec3 = (0.0, 0.0, 0.0)
+    rotate: Vec3 = (0.0, 0.0, 0.0)
+    scale: RGB = (1.0, 1.0, 1.0)
+
+    @field_validator("scale")
+    @classmethod
+    def _scale(cls, v):
+        if not all(math.isfinite(s) and s > 0 for s in v):
+            raise ValueError(f"expected positive scale factors, got {list(v)}")
+        return v
+
+    def matrix(self) -> np.ndarray:
+        """4x4 homogeneous matrix."""
+        rx, ry, rz = np.radians(self.rotate)
+        cx, sx, cy, sy, cz, sz = np.cos(rx), np.sin(rx), np.cos(ry), np.sin(ry), np.cos(rz), np.sin(rz)
+        Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+        Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+        Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+        M = np.eye(4)
+        M[:3, :3] = Rz @ Ry @ Rx @ np.diag(self.scale)
+        M[:3, 3] = self.translate
+        return M
+
+
+class ShapeBase(Strict):
+    name: str | None = None
+    interface: Literal["diffuse", "dielectric", "mirror", "null"] = "diffuse"
+    albedo: RGB = (0.8, 0.8, 0.8)  # diffuse albedo, or mirror reflectance
+    eta: float | None = None  # interior index of a dielectric; default: the medium's eta, else 1.5
+    medium: MediumRef | None = None  # interior medium
+    exterior_medium: MediumRef | None = None
+    exterior_eta: float = 1.0
+    transform: Transform | None = None
+
+    @field_validator("albedo")
+    @classmethod
+    def _alb(cls, v):
+        if not all(0.0 <= a <= 1.0 for a in v):
+            raise ValueError(f"expected albedo in [0, 1] per channel, got {list(v)}")
+        return v
+
+    @field_validator("eta", "exterior_eta")
+    @classmethod
+    def _eta(cls, v):
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise ValueError(f"expected eta > 0, got {v}")
+        return v
+
+
+class SphereShape(ShapeBase):
+    """Intersected analytically: refracts like a true sphere."""
+
+    type: Literal["sphere"]
+    center: Vec3 = (0.0, 0.0, 0.0)
+    radius: float = Field(1.0, gt=0)
+
+
+class BumpySphereShape(ShapeBase):
+    """A sphere displaced radially by smooth noise: r = radius * (1 + amplitude * n(w)), |n| <= 1."""
+
+    type: Literal["bumpy_sphere"]
+    center: Vec3 = (0.0, 0.0, 0.0)
+    radius: float = Field(1.0, gt=0)
+    amplitude: float = Field(0.1, ge=0, lt=1)
+    frequency: float = Field(3.0, gt=0)
+    seed: int = Field(0, ge=0)
+    subdivisions: int = Field(6, ge=1, le=8)
+
+
+class BoxShape(ShapeBase):
+    type: Literal["box"]
+    center: Vec3 = (0.0, 0.0, 0.0)
+    size: Vec3 = (1.0, 1.0, 1.0)
+
+    @field_validator("size")
+    @classmethod
+    def _pos(cls, v):
+        if not all(s > 0 for s in v):
+            raise ValueError(f"expected positive lengths, got {list(v)}")
+        return v
+
+
+class CylinderShape(ShapeBase):
+    """Closed cylinder along +y, its base centred at ``center``."""
+
+    type: Literal["cylinder"]
+    center: Vec3 = (0.0, 0.0, 0.0)
+    radius: float = Field(1.0, gt=0)
+    height: float = Field(1.0, gt=0)
+    segments: int = Field(256, ge=8)
+
+
+class QuadShape(ShapeBase):
+    """A rectangle in the xz plane centred at ``center``, normal +y (use a transform to turn it)."""
+
+    type: Literal["quad"]
+    center: Vec3 = (0.0, 0.0, 0.0)
+    size: tuple[float, float] = (1.0, 1.0)
+
+    @field_validator("size")
+    @classmethod
+    def _pos(cls, v):
+        if not all(s > 0 for s in v):
+            raise ValueError(f"expected positive lengths, got {list(v)}")
+        return v
+
+
+class CupShape(ShapeBase):
+    """An open-top glass along +y (base centred at ``center``), optionally partly filled with a liquid.
+
+    The glass itself is a dielectric of index ``eta`` (default 1.5) holding ``medium`` (usually none).
+    With ``fill`` > 0 it generates the liquid's surfaces too: the glass-liquid interface (relative index)
+    and the liquid's free surface, so that the three-interface case is one shape.
+    """
+
+    type: Literal["cup"]
+    center: Vec3 = (0.0, 0.0, 0.0)
+    radius: float = Field(1.0, gt=0, description="outer radius")
+    height: float = Field(2.0, gt=0)
+    wall: float = Field(0.1, gt=0, description="wall thickness")
+    bottom: float = Field(0.2, gt=0, description="bottom thickness")
+    fill: float = Field(0.0, ge=0, le=1, description="liquid level as a fraction of the inner height")
+    liquid: MediumRef | None = None
+    liquid_eta: float | None = None
+    segments: int = Field(256, ge=8)
+
+    @model_validator(mode="after")
+    def _dims(self):
+        if self.wall >= self.radius:
+            raise ValueError(f"wall ({self.wall}) must be thinner than the radius ({self.radius})")
+        if self.bottom >= self.height:
+            raise ValueError(f"bottom ({self.bottom}) must be thinner than the height ({self.height})")
+        if self.fill > 0 and self.liquid is None:
+            raise ValueError("fill > 0 needs a liquid")
+        return self
+
+
+class MeshShape(ShapeBase):
+    """A mesh file read by trimesh (OBJ, PLY, STL, glTF/GLB), relative to the scene file."""
+
+    type: Literal["mesh"]
+    file: str
+    smooth: bool = True  # interpolate vertex normals (split at creases sharper than 60 degrees)
+
+
+Shape = Annotated[
+    Union[SphereShape, BumpySphereShape, BoxShape, CylinderShape, QuadShape, CupShape, MeshShape],
+    Field(discriminator="type"),
+]
+
+
+class Scene(Strict):
+    unit: Literal["scene", "mm", "cm", "m", "um", "in"] = "scene"
+    camera: Camera
+    render: RenderSettings = RenderSettings()
+    lights: list[Light] = Field(default_factory=list)
+    shapes: list[Shape] = Field(default_factory=list)
+    materials: dict[str, Material] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _has_light(self):
+        if not self.lights:
+            raise ValueError("expected at least one light in 'lights'")
+        return self
+
+
+# --------------------------------------------------------------------------- loading
+
+
+def _format_loc(loc: tuple) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            # Pydantic puts the discriminator value / union member name in the location: keep it readable.
+            out += ("." if out else "") + str(part)
+    return out or "(top level)"
+
+
+def _describe(err: ValidationError) -> tuple[str, str]:
+    """(field, message) for the first error of a ValidationError, pydantic's noise removed."""
+    e = err.errors(include_url=False)[0]
+    loc = tuple(p for p in e["loc"] if p not in PYDANTIC_UNION_TAGS)
+    msg = e["msg"].removeprefix("Value error, ")
+    if e["type"] == "extra_forbidden":
+        msg = "unknown field"
+    elif e["type"] == "missing":
+        msg = "required field is missing"
+    elif e["type"] == "union_tag_invalid":
+        msg = f"unknown type {e['input'].get('type')!r}; " + msg.split(";")[-1].strip() if isinstance(e.get("input"), dict) else msg
+    elif e["type"] == "union_tag_not_found":
+        msg = "missing 'type' field"
+    more = len(err.errors()) - 1
+    if more:
+        msg += f" (and {more} more error{'s' if more > 1 else ''})"
+    return _format_loc(loc), msg
+
+
+# Tags that Pydantic inserts into error locations for discriminated and plain unions.
+PYDANTIC_UNION_TAGS = {
+    "point", "directional", "sphere", "quad", "environment", "bumpy_sphere", "box", "cylinder",
+    "cup", "mesh", "str", "Material",
+}
+
+
+def read_toml(path: Path) -> dict:
+    path = Path(path)
+    if not path.exists():
+        raise ConfigError(path, None, "file not found")
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(path, None, f"TOML syntax error: {e}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(path, None, f"cannot read file: {e}") from None
+
+
+def load_material(path: Path) -> Material:
+    path = Path(path)
+    data = read_toml(path)
+    try:
+        return Material.model_validate(data)
+    except ValidationError as e:
+        raise ConfigError(path, *_describe(e)) from None
+
+
+def load_scene(path: Path) -> Scene:
+    path = Path(path)
+    data = read_toml(path)
+    try:
+        scene = Scene.model_validate(data)
+    except ValidationError as e:
+        raise ConfigError(path, *_describe(e)) from None
+    # Resolve every medium reference now, so that a bad name fails here with its field.
+    for i, shape in enumerate(scene.shapes):
+        for fld in ("medium", "exterior_medium", "liquid"):
+            ref = getattr(shape, fld, None)
+            if ref is not None:
+                resolve_medium(ref, scene, path, f"shapes[{i}].{fld}")
+        if isinstance(shape, MeshShape):
+            mesh_path = (path.parent / shape.file)
+            if not mesh_path.exists():
+                raise ConfigError(path, f"shapes[{i}].file", f"mesh file not found: {mesh_path}")
+    for name, m in scene.materials.items():
+        try:
+            m.coefficients(scene.unit)
+        except ValueError as e:
+            raise ConfigError(path, f"materials.{name}.length_unit", str(e)) from None
+    return scene
+
+
+def materials_dir() -> Path:
+    """Where the preset material files live: $PBVOL_MATERIALS, else the repository's materials/."""
+    env = os.environ.get("PBVOL_MATERIALS")
+    if env:
+        return Path(env)
+    return Path(__file__).resolve().parent.parent / "materials"
+
+
+def preset_names() -> list[str]:
+    d = materials_dir()
+    return sorted(p.stem for p in d.glob("*.toml")) if d.is_dir() else []
+
+
+def resolve_medium(ref: MediumRef, scene: Scene, scene_path: Path, field: str) -> tuple[Material, str]:
+    """Turn a medium reference into (Material, label).
+
+    A string is, in this order: a name in the scene's [materials] table, a path to a material file
+    (relative to the scene file), or a preset name from materials/.
+    """
+    if isinstance(ref, Material):
+        mat, label = ref, ref.name or "inline"
+    elif ref in scene.materials:
+        mat, label = scene.materials[ref], ref
+    elif ref.endswith(".toml") or "/" in ref:
+        p = Path(scene_path).parent / ref
+        if not p.exists():
+            raise ConfigError(scene_path, field, f"material file not found: {p}")
+        mat, label = load_material(p), ref
+    else:
+        p = materials_dir() / f"{ref}.toml"
+        if not p.exists():
+            names = ", ".join(preset_names()) or "(none found)"
+            raise ConfigError(scene_path, field, f"unknown material {ref!r}; expected one of: {names}")
+        mat, label = load_material(p), ref
+    try:
+        mat.coefficients(scene.unit)
+    except ValueError as e:
+        raise ConfigError(scene_path, field, str(e)) from None
+    return mat, label
+
+
+def dump_toml(model: BaseModel) -> str:
+    import tomli_w
+
+    return tomli_w.dumps(model.model_dump(mode="json", exclude_none=True))

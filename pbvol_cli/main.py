@@ -1,0 +1,149 @@
+"""The `pbvol` command line: one thin function per subcommand, no physics here."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from pbvol_cli.errors import PbvolError
+
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    help="Render participating media behind refractive boundaries from TOML scene files.",
+)
+
+
+def _fail(err: Exception, code: int = 1):
+    typer.echo(f"error: {err}", err=True)
+    raise typer.Exit(code)
+
+
+def _parse_resolution(text: str | None) -> tuple[int, int] | None:
+    if text is None:
+        return None
+    try:
+        w, h = (int(x) for x in text.lower().replace(",", "x").split("x"))
+        if w < 1 or h < 1:
+            raise ValueError
+    except ValueError:
+        raise PbvolError(f"--resolution: expected WIDTHxHEIGHT such as 256x256, got {text!r}") from None
+    return w, h
+
+
+@app.command()
+def render(
+    scene: Annotated[Path, typer.Argument(help="scene file (TOML)")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="output image (.exr)")],
+    method: Annotated[str, typer.Option(help="rendering method: volpath")] = "volpath",
+    spp: Annotated[Optional[int], typer.Option(min=1, help="samples per pixel (overrides the scene)")] = None,
+    seed: Annotated[Optional[int], typer.Option(min=0, help="random seed (overrides the scene)")] = None,
+    threads: Annotated[Optional[int], typer.Option(min=1, help="worker threads")] = None,
+    time_limit: Annotated[Optional[float], typer.Option(min=0.001, help="stop after this many seconds (whole passes)")] = None,
+    resolution: Annotated[Optional[str], typer.Option(help="WIDTHxHEIGHT (overrides the scene)")] = None,
+    orders: Annotated[Optional[str], typer.Option(help="keep only paths with these numbers of volume scattering events: 0, 1, 2, 3+, or a comma list")] = None,
+    max_depth: Annotated[Optional[int], typer.Option(min=1, help="maximum path depth (overrides the scene)")] = None,
+    preview: Annotated[Optional[Path], typer.Option(help="also write a tone-mapped sRGB PNG here")] = None,
+    exposure: Annotated[float, typer.Option(help="preview exposure in stops")] = 0.0,
+    reference: Annotated[Optional[Path], typer.Option(help="print the MSE against this image at the end")] = None,
+    cache_dir: Annotated[Optional[Path], typer.Option(help="cache directory (else $PBVOL_CACHE_DIR, else ~/.cache/pbvol)")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no progress bar")] = False,
+):
+    """Render SCENE to an EXR image (float32 RGB with metadata)."""
+    from pbvol_cli.pipeline.cache import cache_dir as resolve_cache
+    from pbvol_cli.pipeline.render import RenderOptions, format_summary, render_scene
+
+    try:
+        resolve_cache(cache_dir)
+        opts = RenderOptions(method=method, spp=spp, seed=seed, threads=threads, time_limit=time_limit,
+                             resolution=_parse_resolution(resolution), orders=orders, max_depth=max_depth,
+                             quiet=quiet)
+        summary = render_scene(scene, output, opts, preview=preview, reference=reference, exposure=exposure)
+    except (PbvolError, OSError) as e:
+        _fail(e)
+    typer.echo(format_summary(summary))
+
+
+@app.command()
+def compare(
+    image: Annotated[Path, typer.Argument(help="image to evaluate")],
+    reference: Annotated[Path, typer.Argument(help="reference image")],
+    diff: Annotated[Optional[Path], typer.Option(help="write a false-colour error image (PNG)")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="print the metrics as JSON")] = False,
+    fail_above: Annotated[Optional[float], typer.Option(help="exit with status 1 when the MSE exceeds this")] = None,
+):
+    """MSE, relative MSE and PSNR of IMAGE against REFERENCE, overall and per channel."""
+    from pbvol_cli.imageio import read_exr
+    from pbvol_cli.pipeline.compare import error_image_png, format_report, image_metrics
+
+    try:
+        a, _ = read_exr(image)
+        b, _ = read_exr(reference)
+        try:
+            m = image_metrics(a, b)
+        except PbvolError as e:
+            msg = str(e).replace(" A ", f" {image} ").replace(" B ", f" {reference} ")
+            msg = msg.replace("A has", f"{image} has").replace("B has", f"{reference} has")
+            raise PbvolError(msg) from None
+        if diff is not None:
+            error_image_png(a, b, diff)
+    except PbvolError as e:
+        _fail(e, 2)
+    typer.echo(json.dumps(m, allow_nan=False) if as_json else format_report(m, str(image), str(reference)))
+    if fail_above is not None and m["mse"] > fail_above:
+        typer.echo(f"FAIL: MSE {m['mse']:.6g} exceeds {fail_above:g}", err=True)
+        raise typer.Exit(1)
+
+
+@app.command()
+def materials():
+    """List the material presets with their parameters and sources."""
+    from pbvol_cli.config import load_material, materials_dir, preset_names
+
+    try:
+        names = preset_names()
+        if not names:
+            raise PbvolError(f"no material presets found in {materials_dir()}")
+        for name in names:
+            m = load_material(materials_dir() / f"{name}.toml")
+            sa, ss = m.coefficients(m.length_unit)
+            st = sa + ss
+            alb = [s / t if t > 0 else 0.0 for s, t in zip(ss, st)]
+            unit = "scene unit" if m.length_unit == "scene" else m.length_unit
+            typer.echo(f"{name}")
+            typer.echo(f"    albedo {_fmt3(alb)}   mean free path {_fmt3(1 / st)} {unit}   g {m.g:g}   "
+                       f"phase {m.phase}   eta {m.eta:g}")
+            typer.echo(f"    sigma_a {_fmt3(sa)} /{unit}   sigma_s {_fmt3(ss)} /{unit}")
+            typer.echo(f"    source: {m.source}")
+    except PbvolError as e:
+        _fail(e)
+
+
+def _fmt3(v) -> str:
+    return "[" + ", ".join(f"{x:.4g}" for x in v) + "]"
+
+
+@app.command()
+def check(scene: Annotated[Path, typer.Argument(help="scene file (TOML)")]):
+    """Validate SCENE and summarise it: shapes, triangles, lights, media, mean free paths vs object size."""
+    from pbvol_cli import config as C
+    from pbvol_cli.pipeline.check import summarize
+
+    try:
+        sc = C.load_scene(scene)
+        typer.echo(summarize(sc, scene))
+    except PbvolError as e:
+        _fail(e)
+
+
+def main():  # pragma: no cover - console entry
+    app()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(app())

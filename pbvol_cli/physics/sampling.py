@@ -1,0 +1,87 @@
+"""Random numbers and warps shared by every kernel.
+
+The generator is SplitMix64 with one 64-bit state per path: a path's stream depends only on
+(seed, pixel, sample index), never on thread scheduling, so images are reproducible bit for bit.
+"""
+
+import math
+
+import numpy as np
+from numba import njit
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+_INV_2_53 = 1.0 / 9007199254740992.0
+
+
+@njit(inline="always", cache=True)
+def mix64(z):
+    z = (z ^ (z >> np.uint64(30))) * _M1
+    z = (z ^ (z >> np.uint64(27))) * _M2
+    return z ^ (z >> np.uint64(31))
+
+
+@njit(cache=True)
+def seed_state(seed, stream, index):
+    """Initial state for the path `index` of stream `stream` (e.g. pixel, sample) under `seed`."""
+    z = mix64(np.uint64(seed) * _GOLDEN + np.uint64(0x632BE59BD9B4E019))
+    z = mix64(z ^ (np.uint64(stream) * _M1))
+    return mix64(z ^ (np.uint64(index) * _M2 + _GOLDEN))
+
+
+@njit(inline="always", cache=True)
+def rand(state, i):
+    """Uniform double in [0, 1) from state[i], advancing it."""
+    s = state[i] + _GOLDEN
+    state[i] = s
+    return (mix64(s) >> np.uint64(11)) * _INV_2_53
+
+
+@njit(inline="always", cache=True)
+def coordinate_system(nx, ny, nz):
+    """Two unit vectors completing (nx, ny, nz) to an orthonormal frame (Duff et al. 2017)."""
+    sign = 1.0 if nz >= 0.0 else -1.0
+    a = -1.0 / (sign + nz)
+    b = nx * ny * a
+    return (1.0 + sign * nx * nx * a, sign * b, -sign * nx), (b, sign + ny * ny * a, -ny)
+
+
+@njit(inline="always", cache=True)
+def to_world(lx, ly, lz, nx, ny, nz):
+    """Direction (lx, ly, lz) given in the frame whose z axis is n, in world coordinates."""
+    s, t = coordinate_system(nx, ny, nz)
+    return (
+        lx * s[0] + ly * t[0] + lz * nx,
+        lx * s[1] + ly * t[1] + lz * ny,
+        lx * s[2] + ly * t[2] + lz * nz,
+    )
+
+
+@njit(inline="always", cache=True)
+def around(cos_t, phi, nx, ny, nz):
+    """Unit direction at angle acos(cos_t) from n, azimuth phi."""
+    sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
+    return to_world(sin_t * math.cos(phi), sin_t * math.sin(phi), cos_t, nx, ny, nz)
+
+
+@njit(inline="always", cache=True)
+def uniform_sphere(u1, u2):
+    z = 1.0 - 2.0 * u1
+    r = math.sqrt(max(0.0, 1.0 - z * z))
+    phi = 2.0 * math.pi * u2
+    return r * math.cos(phi), r * math.sin(phi), z
+
+
+@njit(inline="always", cache=True)
+def cosine_hemisphere(u1, u2, nx, ny, nz):
+    """Cosine-weighted direction around n; pdf = cos / pi."""
+    r = math.sqrt(u1)
+    phi = 2.0 * math.pi * u2
+    return to_world(r * math.cos(phi), r * math.sin(phi), math.sqrt(max(0.0, 1.0 - u1)), nx, ny, nz)
+
+
+@njit(inline="always", cache=True)
+def power_heuristic(pa, pb):
+    a2 = pa * pa
+    return a2 / (a2 + pb * pb) if a2 > 0.0 else 0.0

@@ -1,0 +1,68 @@
+"""Per-ray geometry helpers for the kernels: analytic spheres and lights, mesh shading normals.
+
+Triangles are intersected by Embree in batches (pbvol_cli.geometry.raycast); whatever Embree returns is
+merged here with the analytic primitives, which numba intersects itself (exactly: a sphere shape refracts
+like a sphere).
+"""
+
+import math
+
+import numpy as np
+from numba import njit
+
+from pbvol_cli.physics.lights import _sphere_hit, intersect_lights
+
+INF = np.inf
+
+
+@njit(cache=True)
+def closest_sphere(spheres, ox, oy, oz, dx, dy, dz, tmax):
+    """Closest analytic sphere hit before tmax: (t, sphere index) or (inf, -1)."""
+    best, idx = tmax, -1
+    for k in range(spheres.shape[0]):
+        t, _ = _sphere_hit(ox, oy, oz, dx, dy, dz, spheres[k, 0], spheres[k, 1], spheres[k, 2], spheres[k, 3], 0.0)
+        if t < best:
+            best, idx = t, k
+    return (best, idx) if idx >= 0 else (INF, -1)
+
+
+@njit(cache=True)
+def analytic_distance_bound(spheres, lights, x, y, z):
+    """Lower bound on the distance from (x, y, z) to every analytic sphere and area light."""
+    b = INF
+    for k in range(spheres.shape[0]):
+        cx, cy, cz = x - spheres[k, 0], y - spheres[k, 1], z - spheres[k, 2]
+        b = min(b, abs(math.sqrt(cx * cx + cy * cy + cz * cz) - spheres[k, 3]))
+    for k in range(lights.shape[0]):
+        if lights[k, 0] == 2.0:  # sphere light
+            cx, cy, cz = x - lights[k, 4], y - lights[k, 5], z - lights[k, 6]
+            b = min(b, abs(math.sqrt(cx * cx + cy * cy + cz * cz) - lights[k, 13]))
+        elif lights[k, 0] == 3.0:  # quad light: distance to its plane
+            e1x, e1y, e1z = lights[k, 7], lights[k, 8], lights[k, 9]
+            e2x, e2y, e2z = lights[k, 10], lights[k, 11], lights[k, 12]
+            nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+            inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
+            b = min(b, abs((x - lights[k, 4]) * nx + (y - lights[k, 5]) * ny + (z - lights[k, 6]) * nz) * inv)
+    return b
+
+
+@njit(cache=True)
+def analytic_hit(spheres, lights, ox, oy, oz, dx, dy, dz, tmax):
+    """Closest analytic hit: (t, kind, index) with kind 1 = sphere shape, 2 = area light, 0 = none."""
+    ts, ks = closest_sphere(spheres, ox, oy, oz, dx, dy, dz, tmax)
+    tl, kl = intersect_lights(lights, ox, oy, oz, dx, dy, dz, min(tmax, ts))
+    if kl >= 0 and tl < ts:
+        return tl, 2, kl
+    if ks >= 0:
+        return ts, 1, ks
+    return INF, 0, -1
+
+
+@njit(inline="always", cache=True)
+def mesh_shading_normal(tri_normals, prim, u, v):
+    w = 1.0 - u - v
+    nx = w * tri_normals[prim, 0, 0] + u * tri_normals[prim, 1, 0] + v * tri_normals[prim, 2, 0]
+    ny = w * tri_normals[prim, 0, 1] + u * tri_normals[prim, 1, 1] + v * tri_normals[prim, 2, 1]
+    nz = w * tri_normals[prim, 0, 2] + u * tri_normals[prim, 1, 2] + v * tri_normals[prim, 2, 2]
+    inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
+    return nx * inv, ny * inv, nz * inv

@@ -1,0 +1,580 @@
+"""Unbiased volumetric path tracer (the reference every other method is checked against).
+
+Wavefront structure: a batch of paths lives in flat arrays. Each step
+  1. Embree casts the rays of the paths that need a triangle hit (one batched call);
+  2. one numba kernel advances every live path as far as it can go without Python: through scattering
+     events (free flights shorter than the conservative distance to any triangle need no cast), analytic
+     spheres and lights (intersected in the kernel), surfaces, until the path needs a new triangle cast,
+     emits a shadow ray, or dies;
+  3. shadow rays are resolved the same way (cast, kernel, repeat while they cross null interfaces).
+
+Physics:
+- Homogeneous media with RGB coefficients: free-flight distances are sampled in one channel chosen with
+  probability proportional to the path throughput, and weighted by the one-sample MIS (balance) over the
+  three channels (spectral MIS), so the estimate stays unbiased when sigma_t differs per channel.
+- Phase functions sampled exactly; smooth dielectrics with Fresnel (reflection or refraction chosen in
+  proportion to F), total internal reflection, the (eta_i / eta_t)^2 radiance scale; mirrors; Lambertian.
+- Next-event estimation at scattering events and diffuse surfaces, with power-heuristic MIS for area
+  lights and the environment. Shadow rays cross null (index-matched) interfaces with the media's
+  transmittance and are blocked by anything that refracts.
+- Russian roulette from rr_depth on (on throughput with the eta^2 factors undone), a maximum depth.
+- Order filter: each contribution is tagged with the number of volume scattering events on its path and
+  kept only if that number is in the requested set (0, 1, 2, 3+).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+from numba import njit, prange
+
+from pbvol_cli.geometry.distance_grid import mesh_distance_bound
+from pbvol_cli.geometry.raycast import TriangleCaster
+from pbvol_cli.geometry.scene_build import DIELECTRIC, DIFFUSE, MIRROR, NULL, BuiltScene
+from pbvol_cli.physics.fresnel import fresnel_dielectric, reflect, refract
+from pbvol_cli.physics.lights import ENVIRONMENT, emitted_toward, light_pdf, light_sample
+from pbvol_cli.physics.phase import phase_eval, phase_sample
+from pbvol_cli.physics.sampling import cosine_hemisphere, power_heuristic, rand
+from pbvol_cli.render.camera import generate_camera_rays
+from pbvol_cli.render.intersect import analytic_distance_bound, analytic_hit, mesh_shading_normal
+
+DEAD, NEED_CAST, CONTINUE = 0, 1, 2
+INF = np.inf
+
+# misc[] layout shared by the kernels
+M_EPS, M_MAXDEPTH, M_RRDEPTH, M_ORDERS, M_MAXORDER, M_HASMESH, M_ENV, M_NLIGHTS = range(8)
+
+
+def orders_mask(orders: str | None) -> tuple[int, int]:
+    """Parse '0', '1', '2', '3+', comma lists, 'all' -> (bitmask over 0,1,2,3+, highest order needed).
+
+    The highest order is 1 << 30 when '3+' is included (no early termination).
+    """
+    if orders is None or orders.strip() in ("", "all"):
+        return 0b1111, 1 << 30
+    mask = 0
+    for tok in orders.replace(" ", "").split(","):
+        if tok in ("0", "1", "2"):
+            mask |= 1 << int(tok)
+        elif tok in ("3+", "3"):
+            mask |= 1 << 3
+        else:
+            raise ValueError(f"unknown scattering order {tok!r}; expected 0, 1, 2, 3+ or a comma list")
+    top = 1 << 30 if mask & 8 else max(k for k in range(3) if mask & (1 << k))
+    return mask, top
+
+
+class Paths:
+    """Structure-of-arrays state of a batch of paths."""
+
+    def __init__(self, n: int):
+        self.pos = np.zeros((n, 3))
+        self.dir = np.zeros((n, 3))
+        self.beta = np.zeros((n, 3))
+        self.L = np.zeros((n, 3))
+        self.rng = np.zeros(n, np.uint64)
+        self.pixel = np.zeros(n, np.int64)
+        self.status = np.zeros(n, np.int8)
+        self.medium = np.zeros(n, np.int32)
+        self.depth = np.zeros(n, np.int32)
+        self.nscat = np.zeros(n, np.int32)
+        self.tpend = np.zeros(n)
+        self.prev_pos = np.zeros((n, 3))
+        self.prev_pdf = np.zeros(n)  # solid-angle pdf of the last non-specular sampling; 0 = no MIS
+        self.eta_scale = np.zeros(n)
+        # shadow-ray slot: one per path and step
+        self.sh_active = np.zeros(n, np.bool_)
+        self.sh_pos = np.zeros((n, 3))
+        self.sh_dir = np.zeros((n, 3))
+        self.sh_tmax = np.zeros(n)
+        self.sh_C = np.zeros((n, 3))
+        self.sh_med = np.zeros(n, np.int32)
+        # triangle hits from the last cast
+        self.hit_t = np.zeros(n)
+        self.hit_prim = np.zeros(n, np.int32)
+        self.hit_u = np.zeros(n, np.float32)
+        self.hit_v = np.zeros(n, np.float32)
+        self.hit_ng = np.zeros((n, 3), np.float32)
+
+    def state(self):
+        return (self.pos, self.dir, self.beta, self.L, self.rng, self.status, self.medium, self.depth,
+                self.nscat, self.tpend, self.prev_pos, self.prev_pdf, self.eta_scale)
+
+    def shadow(self):
+        return (self.sh_active, self.sh_pos, self.sh_dir, self.sh_tmax, self.sh_C, self.sh_med)
+
+    def hits(self):
+        return (self.hit_t, self.hit_prim, self.hit_u, self.hit_v, self.hit_ng)
+
+
+# ----------------------------------------------------------------------------- kernel pieces
+
+
+@njit(inline="always", cache=True)
+def _order_ok(misc, n):
+    return (int(misc[M_ORDERS]) >> min(n, 3)) & 1
+
+
+@njit(inline="always", cache=True)
+def _sample_flight(media, m, beta, i, rng):
+    """Free-flight distance in medium m, channel chosen in proportion to the throughput."""
+    b0, b1, b2 = beta[i, 0], beta[i, 1], beta[i, 2]
+    s = b0 + b1 + b2
+    if s <= 0.0:
+        return INF
+    u = rand(rng, i) * s
+    c = 0 if u < b0 else (1 if u < b0 + b1 else 2)
+    st = media[m, c] + media[m, 3 + c]
+    if st <= 0.0:
+        return INF
+    return -math.log(1.0 - rand(rng, i)) / st
+
+
+@njit(inline="always", cache=True)
+def _flight_weight(media, m, beta, i, t, scatter):
+    """Apply the spectral-MIS weight of a flight of length t ending in a scattering event or not."""
+    b0, b1, b2 = beta[i, 0], beta[i, 1], beta[i, 2]
+    s = b0 + b1 + b2
+    pdf = 0.0
+    tr0 = tr1 = tr2 = 0.0
+    for c in range(3):
+        st = media[m, c] + media[m, 3 + c]
+        tr = math.exp(-st * t)
+        pc = (b0 if c == 0 else (b1 if c == 1 else b2)) / s
+        pdf += pc * (st * tr if scatter else tr)
+        if c == 0:
+            tr0 = tr
+        elif c == 1:
+            tr1 = tr
+        else:
+            tr2 = tr
+    if pdf <= 0.0:
+        beta[i, 0] = beta[i, 1] = beta[i, 2] = 0.0
+        return
+    if scatter:
+        beta[i, 0] *= media[m, 3] * tr0 / pdf
+        beta[i, 1] *= media[m, 4] * tr1 / pdf
+        beta[i, 2] *= media[m, 5] * tr2 / pdf
+    else:
+        beta[i, 0] *= tr0 / pdf
+        beta[i, 1] *= tr1 / pdf
+        beta[i, 2] *= tr2 / pdf
+
+
+@njit(inline="always", cache=True)
+def _russian_roulette(misc, beta, eta_scale, depth, rng, i):
+    """True if the path survives (its throughput rescaled)."""
+    if depth[i] < misc[M_RRDEPTH]:
+        return True
+    q = max(beta[i, 0], max(beta[i, 1], beta[i, 2])) * eta_scale[i]
+    if q >= 1.0:
+        return True
+    if rand(rng, i) >= q:
+        return False
+    beta[i, 0] /= q
+    beta[i, 1] /= q
+    beta[i, 2] /= q
+    return True
+
+
+@njit(inline="always", cache=True)
+def _add_emission(L, beta, i, r, g, b, w):
+    L[i, 0] += beta[i, 0] * r * w
+    L[i, 1] += beta[i, 1] * g * w
+    L[i, 2] += beta[i, 2] * b * w
+
+
+@njit(cache=True)
+def _nee(i, px, py, pz, kind, nx, ny, nz, dx, dy, dz, phase_kind, g, albedo, medium, S, misc, st, sh):
+    """Next-event estimation from a scattering point (kind 0, phase toward -d... of propagation d) or a
+    diffuse point (kind 1, facing normal n, albedo RGB). Fills the path's shadow slot; True if it did."""
+    lights = S[5]
+    beta, rng, nscat = st[2], st[4], st[8]
+    sh_active, sh_pos, sh_dir, sh_tmax, sh_C, sh_med = sh
+    nl = lights.shape[0]
+    li = min(int(rand(rng, i) * nl), nl - 1)
+    u1, u2 = rand(rng, i), rand(rng, i)
+    wx, wy, wz, dist, Lr, Lg, Lb, pdf, delta = light_sample(lights, li, px, py, pz, u1, u2)
+    if pdf <= 0.0 or (Lr == 0.0 and Lg == 0.0 and Lb == 0.0):
+        return False
+    pdf /= nl
+    eps = misc[M_EPS]
+    if kind == 0:
+        f = phase_eval(phase_kind, g, dx * wx + dy * wy + dz * wz)
+        fr = fg = fb = f
+        ox, oy, oz = px, py, pz
+    else:
+        c = nx * wx + ny * wy + nz * wz
+        if c <= 0.0:
+            return False
+        f = c / math.pi
+        fr, fg, fb = albedo[0] * f, albedo[1] * f, albedo[2] * f
+        ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
+    w = 1.0 if delta else power_heuristic(pdf, f)
+    scale = w / pdf
+    sh_C[i, 0] = beta[i, 0] * fr * Lr * scale
+    sh_C[i, 1] = beta[i, 1] * fg * Lg * scale
+    sh_C[i, 2] = beta[i, 2] * fb * Lb * scale
+    sh_pos[i, 0], sh_pos[i, 1], sh_pos[i, 2] = ox, oy, oz
+    sh_dir[i, 0], sh_dir[i, 1], sh_dir[i, 2] = wx, wy, wz
+    # Stop short of an area light's surface so that the light itself does not block the ray.
+    sh_tmax[i] = dist * (1.0 - 1e-7) - 2.0 * eps if dist < INF else INF
+    sh_med[i] = medium
+    sh_active[i] = True
+    return True
+
+
+@njit(cache=True)
+def _path_advance(i, fresh, S, misc, st, sh, hits):
+    """Advance path i until it needs a triangle cast, has emitted a shadow ray, or is dead."""
+    tri_surface, tri_normals, spheres, surfaces, media, lights, grid_params, grid_cells = S
+    pos, dirs, beta, L, rng, status, medium, depth, nscat, tpend, prev_pos, prev_pdf, eta_scale = st
+    hit_t, hit_prim, hit_u, hit_v, hit_ng = hits
+    eps = misc[M_EPS]
+    has_mesh = misc[M_HASMESH] > 0.0
+    nl = lights.shape[0]
+    while True:
+        ox, oy, oz = pos[i, 0], pos[i, 1], pos[i, 2]
+        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        m = medium[i]
+        tp = tpend[i] if m >= 0 else INF
+        # --- the closest event along the ray: scattering (tp), analytic hit, or triangle hit
+        ta, akind, aidx = analytic_hit(spheres, lights, ox, oy, oz, dx, dy, dz, INF)
+        if fresh:
+            tm, prim = hit_t[i], hit_prim[i]
+            fresh = False
+        else:
+            tm, prim = INF, -1
+            if has_mesh:
+                need = min(tp, ta)
+                if not (need < mesh_distance_bound(grid_params, grid_cells, ox, oy, oz)):
+                    status[i] = NEED_CAST
+                    return
+        tsurf = min(ta, tm)
+        if m >= 0:
+            if tp < tsurf:
+                # ---------------- scattering event
+                _flight_weight(media, m, beta, i, tp, True)
+                px, py, pz = ox + tp * dx, oy + tp * dy, oz + tp * dz
+                nscat[i] += 1
+                depth[i] += 1
+                if depth[i] > misc[M_MAXDEPTH] or nscat[i] > misc[M_MAXORDER]:
+                    status[i] = DEAD
+                    return
+                kind, g = int(media[m, 6]), media[m, 7]
+                did_nee = False
+                if media[m, 8] == 0.0 and nl > 0 and _order_ok(misc, nscat[i]):
+                    did_nee = _nee(i, px, py, pz, 0, 0.0, 0.0, 0.0, dx, dy, dz, kind, g, media[m, 0:3], m,
+                                   S, misc, st, sh)
+                wx, wy, wz, pdf = phase_sample(kind, g, dx, dy, dz, rand(rng, i), rand(rng, i), rand(rng, i))
+                prev_pos[i, 0], prev_pos[i, 1], prev_pos[i, 2] = px, py, pz
+                prev_pdf[i] = pdf if did_nee else 0.0
+                if not _russian_roulette(misc, beta, eta_scale, depth, rng, i):
+                    status[i] = DEAD
+                    return
+                pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
+                dirs[i, 0], dirs[i, 1], dirs[i, 2] = wx, wy, wz
+                tpend[i] = _sample_flight(media, m, beta, i, rng)
+                if did_nee:
+                    status[i] = CONTINUE
+                    return
+                continue
+            if tsurf < INF:
+                _flight_weight(media, m, beta, i, tsurf, False)
+        # ---------------- escape to the environment
+        if tsurf == INF:
+            for li in range(nl):
+                if lights[li, 0] == ENVIRONMENT and _order_ok(misc, nscat[i]):
+                    w = 1.0
+                    if prev_pdf[i] > 0.0:
+                        w = power_heuristic(prev_pdf[i], light_pdf(lights, li, 0.0, 0.0, 0.0, dx, dy, dz, INF) / nl)
+                    _add_emission(L, beta, i, lights[li, 1], lights[li, 2], lights[li, 3], w)
+            status[i] = DEAD
+            return
+        hx, hy, hz = ox + tsurf * dx, oy + tsurf * dy, oz + tsurf * dz
+        # ---------------- area light
+        if tm > ta and akind == 2:
+            if _order_ok(misc, nscat[i]):
+                e = emitted_toward(lights, aidx, dx, dy, dz, ox, oy, oz, ta)
+                if e > 0.0:
+                    w = 1.0
+                    if prev_pdf[i] > 0.0:
+                        qx, qy, qz = hx - prev_pos[i, 0], hy - prev_pos[i, 1], hz - prev_pos[i, 2]
+                        dist = math.sqrt(qx * qx + qy * qy + qz * qz)
+                        w = power_heuristic(prev_pdf[i], light_pdf(lights, aidx, prev_pos[i, 0], prev_pos[i, 1],
+                                                                   prev_pos[i, 2], dx, dy, dz, dist) / nl)
+                    _add_emission(L, beta, i, lights[aidx, 1], lights[aidx, 2], lights[aidx, 3], w * e)
+            status[i] = DEAD
+            return
+        # ---------------- a surface: geometric normal (exterior side) and shading normal
+        if tm <= ta:
+            s = tri_surface[prim]
+            gx, gy, gz = float(hit_ng[i, 0]), float(hit_ng[i, 1]), float(hit_ng[i, 2])
+            inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
+            gx, gy, gz = gx * inv, gy * inv, gz * inv
+            nx, ny, nz = mesh_shading_normal(tri_normals, prim, float(hit_u[i]), float(hit_v[i]))
+        else:
+            s = int(spheres[aidx, 4])
+            r = spheres[aidx, 3]
+            gx, gy, gz = (hx - spheres[aidx, 0]) / r, (hy - spheres[aidx, 1]) / r, (hz - spheres[aidx, 2]) / r
+            inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
+            gx, gy, gz = gx * inv, gy * inv, gz * inv
+            nx, ny, nz = gx, gy, gz
+        stype = surfaces[s, 0]
+        entering = dx * gx + dy * gy + dz * gz < 0.0
+        # normals on the incident side
+        sgn = 1.0 if entering else -1.0
+        fgx, fgy, fgz = sgn * gx, sgn * gy, sgn * gz
+        fnx, fny, fnz = sgn * nx, sgn * ny, sgn * nz
+        if fnx * fgx + fny * fgy + fnz * fgz <= 0.0:  # degenerate shading normal
+            fnx, fny, fnz = fgx, fgy, fgz
+        if stype == NULL:
+            medium[i] = int(surfaces[s, 1]) if entering else int(surfaces[s, 2])
+            pos[i, 0], pos[i, 1], pos[i, 2] = hx - eps * fgx, hy - eps * fgy, hz - eps * fgz
+            if medium[i] >= 0:
+                tpend[i] = _sample_flight(media, medium[i], beta, i, rng)
+            continue
+        depth[i] += 1
+        if depth[i] > misc[M_MAXDEPTH]:
+            status[i] = DEAD
+            return
+        did_nee = False
+        if stype == DIELECTRIC:
+            eta_i = surfaces[s, 4] if entering else surfaces[s, 3]
+            eta_t = surfaces[s, 3] if entering else surfaces[s, 4]
+            cos_i = -(dx * fnx + dy * fny + dz * fnz)
+            if cos_i < 1e-9:
+                cos_i = 1e-9
+            F, cos_t = fresnel_dielectric(cos_i, eta_t / eta_i)
+            if rand(rng, i) < F:
+                wx, wy, wz = reflect(dx, dy, dz, fnx, fny, fnz)
+            else:
+                wx, wy, wz = refract(dx, dy, dz, fnx, fny, fnz, eta_t / eta_i, cos_i, cos_t)
+                k = (eta_i / eta_t) ** 2
+                beta[i, 0] *= k
+                beta[i, 1] *= k
+                beta[i, 2] *= k
+                eta_scale[i] /= k
+            prev_pdf[i] = 0.0
+        elif stype == MIRROR:
+            wx, wy, wz = reflect(dx, dy, dz, fnx, fny, fnz)
+            beta[i, 0] *= surfaces[s, 5]
+            beta[i, 1] *= surfaces[s, 6]
+            beta[i, 2] *= surfaces[s, 7]
+            prev_pdf[i] = 0.0
+        else:  # DIFFUSE
+            cur = medium[i]
+            if (cur < 0 or media[cur, 8] == 0.0) and nl > 0 and _order_ok(misc, nscat[i]):
+                did_nee = _nee(i, hx, hy, hz, 1, fnx, fny, fnz, dx, dy, dz, 0, 0.0, surfaces[s, 5:8], cur,
+                               S, misc, st, sh)
+            wx, wy, wz = cosine_hemisphere(rand(rng, i), rand(rng, i), fnx, fny, fnz)
+            c = wx * fnx + wy * fny + wz * fnz
+            beta[i, 0] *= surfaces[s, 5]
+            beta[i, 1] *= surfaces[s, 6]
+            beta[i, 2] *= surfaces[s, 7]
+            prev_pdf[i] = c / math.pi if did_nee else 0.0
+            prev_pos[i, 0], prev_pos[i, 1], prev_pos[i, 2] = hx, hy, hz
+        # side of the geometric surface the new direction leaves on decides the medium
+        out_ext = wx * gx + wy * gy + wz * gz > 0.0
+        if stype == DIELECTRIC:
+            medium[i] = int(surfaces[s, 2]) if out_ext else int(surfaces[s, 1])
+        elif (out_ext != entering):  # opaque surface: a direction below the surface ends the path
+            status[i] = DEAD
+            return
+        off = eps if out_ext else -eps
+        pos[i, 0], pos[i, 1], pos[i, 2] = hx + off * gx, hy + off * gy, hz + off * gz
+        dirs[i, 0], dirs[i, 1], dirs[i, 2] = wx, wy, wz
+        if not _russian_roulette(misc, beta, eta_scale, depth, rng, i):
+            status[i] = DEAD
+            return
+        if medium[i] >= 0:
+            tpend[i] = _sample_flight(media, medium[i], beta, i, rng)
+        if did_nee:
+            status[i] = CONTINUE
+            return
+
+
+# Numba pitfall: arrays unpacked from a tuple inside a parallel function lose their writes in prange
+# (numba 0.68). Parallel kernels therefore only loop and call an inner function that takes the tuples.
+
+
+@njit(parallel=True, cache=True)
+def advance_paths(active, S, misc, st, sh, hits):
+    for k in prange(active.shape[0]):
+        i = active[k]
+        _path_advance(i, st[5][i] == NEED_CAST, S, misc, st, sh, hits)
+
+
+@njit(parallel=True, cache=True)
+def advance_shadows(active, fresh_flags, S, misc, sh, hits, L):
+    """Move shadow rays forward through null interfaces; add the unblocked ones to L.
+
+    Leaves sh_active True (and fresh_flags[k] = 1) for rays that need a triangle cast.
+    """
+    for k in prange(active.shape[0]):
+        _shadow_advance(active[k], k, fresh_flags, S, misc, sh, hits, L)
+
+
+@njit(cache=True)
+def _shadow_advance(i, k, fresh_flags, S, misc, sh, hits, L):
+    tri_surface, tri_normals, spheres, surfaces, media, lights, grid_params, grid_cells = S
+    sh_active, sh_pos, sh_dir, sh_tmax, sh_C, sh_med = sh
+    hit_t, hit_prim, hit_u, hit_v, hit_ng = hits
+    eps = misc[M_EPS]
+    has_mesh = misc[M_HASMESH] > 0.0
+    fresh = fresh_flags[k] == 1
+    fresh_flags[k] = 0
+    while True:
+        ox, oy, oz = sh_pos[i, 0], sh_pos[i, 1], sh_pos[i, 2]
+        dx, dy, dz = sh_dir[i, 0], sh_dir[i, 1], sh_dir[i, 2]
+        tmax = sh_tmax[i]
+        ta, akind, aidx = analytic_hit(spheres, lights, ox, oy, oz, dx, dy, dz, tmax)
+        if fresh:
+            tm, prim = hit_t[i], hit_prim[i]
+            fresh = False
+        else:
+            tm, prim = INF, -1
+            if has_mesh and not (min(ta, tmax) < mesh_distance_bound(grid_params, grid_cells, ox, oy, oz)):
+                fresh_flags[k] = 1
+                break
+        t = min(ta, tm)
+        m = sh_med[i]
+        if t >= tmax:
+            if m >= 0 and tmax < INF:
+                for c in range(3):
+                    sh_C[i, c] *= math.exp(-(media[m, c] + media[m, 3 + c]) * tmax)
+            elif m >= 0:
+                sh_C[i, 0] = sh_C[i, 1] = sh_C[i, 2] = 0.0
+            L[i, 0] += sh_C[i, 0]
+            L[i, 1] += sh_C[i, 1]
+            L[i, 2] += sh_C[i, 2]
+            sh_active[i] = False
+            break
+        if tm <= ta:
+            s = tri_surface[prim]
+            gx, gy, gz = float(hit_ng[i, 0]), float(hit_ng[i, 1]), float(hit_ng[i, 2])
+        elif akind == 1:
+            s = int(spheres[aidx, 4])
+            hx, hy, hz = ox + t * dx, oy + t * dy, oz + t * dz
+            gx, gy, gz = hx - spheres[aidx, 0], hy - spheres[aidx, 1], hz - spheres[aidx, 2]
+        else:
+            s = -1
+        if s < 0 or surfaces[s, 0] != NULL:
+            sh_active[i] = False  # blocked
+            break
+        if m >= 0:
+            for c in range(3):
+                sh_C[i, c] *= math.exp(-(media[m, c] + media[m, 3 + c]) * t)
+        inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
+        gx, gy, gz = gx * inv, gy * inv, gz * inv
+        entering = dx * gx + dy * gy + dz * gz < 0.0
+        sh_med[i] = int(surfaces[s, 1]) if entering else int(surfaces[s, 2])
+        sgn = -1.0 if entering else 1.0
+        sh_pos[i, 0] = ox + t * dx + sgn * eps * gx
+        sh_pos[i, 1] = oy + t * dy + sgn * eps * gy
+        sh_pos[i, 2] = oz + t * dz + sgn * eps * gz
+        sh_tmax[i] = tmax - t
+
+
+@njit(parallel=True, cache=True)
+def init_paths(n, st):
+    for i in prange(n):
+        _init_path(i, st)
+
+
+@njit(cache=True)
+def _init_path(i, st):
+    pos, dirs, beta, L, rng, status, medium, depth, nscat, tpend, prev_pos, prev_pdf, eta_scale = st
+    beta[i, 0] = beta[i, 1] = beta[i, 2] = 1.0
+    L[i, 0] = L[i, 1] = L[i, 2] = 0.0
+    status[i] = NEED_CAST
+    medium[i] = -1
+    depth[i] = 0
+    nscat[i] = 0
+    tpend[i] = INF
+    prev_pdf[i] = 0.0
+    eta_scale[i] = 1.0
+
+
+# ----------------------------------------------------------------------------- driver
+
+
+def _cast_into(caster: TriangleCaster, idx, origins, dirs, hits):
+    t, prim, u, v, ng = caster.closest_hit(origins[idx], dirs[idx])
+    hits[0][idx], hits[1][idx], hits[2][idx], hits[3][idx], hits[4][idx] = t, prim, u, v, ng
+
+
+def scene_tuple(bs: BuiltScene):
+    return (bs.tri_surface, bs.tri_normals, bs.spheres, bs.surfaces, bs.media, bs.lights,
+            bs.grid_params, bs.grid_cells)
+
+
+def render_volpath(bs: BuiltScene, spp: int, seed: int, max_depth: int, rr_depth: int, orders: str | None,
+                   batch_paths: int, threads: int, time_limit: float | None = None, progress=None):
+    """Render; returns (image (H, W, 3) float64, spp actually rendered, statistics dict).
+
+    progress(done_paths, total_paths) is called after every batch.
+    """
+    W, H = int(bs.camera[12]), int(bs.camera[13])
+    npix = W * H
+    mask, top = orders_mask(orders)
+    misc = np.zeros(8)
+    misc[M_EPS], misc[M_MAXDEPTH], misc[M_RRDEPTH] = bs.eps, max_depth, rr_depth
+    misc[M_ORDERS], misc[M_MAXORDER] = mask, top
+    misc[M_HASMESH] = float(len(bs.faces) > 0)
+    misc[M_NLIGHTS] = len(bs.lights)
+    S = scene_tuple(bs)
+    caster = TriangleCaster(bs.vertices, bs.faces, threads)
+    total = npix * spp
+    # Batches hold whole passes (all pixels, one or more samples) so a time limit leaves equal counts.
+    per_batch = max(npix, (batch_paths // npix) * npix) if npix <= batch_paths else batch_paths
+    P = Paths(min(per_batch, total))
+    image = np.zeros((npix, 3))
+    st, sh, hits = P.state(), P.shadow(), P.hits()
+    t0 = time.perf_counter()
+    done = 0
+    casts = 0
+    steps = 0
+    while done < total:
+        n = min(per_batch, total - done)
+        generate_camera_rays(bs.camera, seed, done, n, P.pos, P.dir, P.pixel, P.rng)
+        init_paths(n, st)
+        P.status[n:] = DEAD
+        P.sh_active[:] = False
+        while True:
+            need = np.flatnonzero(P.status[:n] == NEED_CAST)
+            if len(need) and not caster.empty:
+                _cast_into(caster, need, P.pos, P.dir, hits)
+                casts += len(need)
+            elif len(need):
+                P.hit_t[need] = INF
+                P.hit_prim[need] = -1
+            active = np.flatnonzero(P.status[:n] != DEAD)
+            if len(active) == 0:
+                break
+            advance_paths(active, S, misc, st, sh, hits)
+            steps += 1
+            sh_idx = np.flatnonzero(P.sh_active[:n])
+            fresh = np.zeros(len(sh_idx), np.int8)
+            while len(sh_idx):
+                advance_shadows(sh_idx, fresh, S, misc, sh, hits, P.L)
+                keep = P.sh_active[sh_idx]
+                sh_idx, fresh = sh_idx[keep], fresh[keep]
+                if len(sh_idx):
+                    _cast_into(caster, sh_idx, P.sh_pos, P.sh_dir, hits)
+                    casts += len(sh_idx)
+                    fresh[:] = 1
+        for c in range(3):
+            image[:, c] += np.bincount(P.pixel[:n], weights=P.L[:n, c], minlength=npix)
+        done += n
+        if progress is not None:
+            progress(done, total)
+        if time_limit is not None and time.perf_counter() - t0 > time_limit and done % npix == 0:
+            break
+    caster.close()
+    spp_done = done // npix
+    img = (image / max(spp_done, 1)).reshape(H, W, 3)
+    elapsed = time.perf_counter() - t0
+    return img, spp_done, {"time_s": elapsed, "paths": done, "casts": casts, "steps": steps}
