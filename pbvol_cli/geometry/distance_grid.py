@@ -7,7 +7,8 @@ its Chebyshev distance k (in cells) to the nearest marked cell. Any point of tha
 (k - 1) * h from every triangle. The grid's border layer is marked too, so triangles outside the grid are
 accounted for.
 
-Layout of ``params``: [ox, oy, oz, h, nx, ny, nz, enabled]. Not enabled: no triangles, the bound is +inf.
+Layout of ``params``: [ox, oy, oz, h, nx, ny, nz, state]. State 1: a grid; 0: no triangles at all, the
+bound is +inf; -1: triangles but no grid (no medium region to cover), the bound is 0.
 """
 
 import math
@@ -79,8 +80,10 @@ def _chebyshev_transform(dist):
 
 def build_distance_grid(V: np.ndarray, F: np.ndarray, lo: np.ndarray, hi: np.ndarray, eps: float):
     """Grid over the box [lo, hi] (where media are) for the triangles (V, F). Returns (params, cells)."""
-    if F.shape[0] == 0 or np.any(hi <= lo):
+    if F.shape[0] == 0:
         return np.array([0, 0, 0, 1, 0, 0, 0, 0.0]), np.zeros((1, 1, 1), np.int16)
+    if np.any(hi <= lo):
+        return np.array([0, 0, 0, 1, 0, 0, 0, -1.0]), np.zeros((1, 1, 1), np.int16)
     ext = hi - lo
     h = float(ext.max()) / (MAX_CELLS - 4)
     n = np.maximum(np.ceil(ext / h).astype(int) + 4, 3)
@@ -98,6 +101,8 @@ def mesh_distance_bound(params, cells, x, y, z):
     """Lower bound on the distance from (x, y, z) to every triangle (0 outside the grid)."""
     if params[7] == 0.0:
         return np.inf
+    if params[7] < 0.0:
+        return 0.0
     h = params[3]
     i = int(math.floor((x - params[0]) / h))
     j = int(math.floor((y - params[1]) / h))

@@ -67,10 +67,12 @@ def _sphere_hit(ox, oy, oz, dx, dy, dz, cx, cy, cz, rad, tmin):
 
 
 @njit(cache=True)
-def intersect_lights(lights, ox, oy, oz, dx, dy, dz, tmax):
-    """Closest area light hit before tmax: (t, light index) or (inf, -1)."""
+def intersect_lights(lights, ox, oy, oz, dx, dy, dz, tmax, skip=-1):
+    """Closest area light hit before tmax, ignoring light `skip`: (t, light index) or (inf, -1)."""
     best, idx = tmax, -1
     for li in range(lights.shape[0]):
+        if li == skip:
+            continue
         kind = lights[li, 0]
         if kind == SPHERE:
             t, _ = _sphere_hit(ox, oy, oz, dx, dy, dz, lights[li, 4], lights[li, 5], lights[li, 6],

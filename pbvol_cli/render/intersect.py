@@ -47,10 +47,13 @@ def analytic_distance_bound(spheres, lights, x, y, z):
 
 
 @njit(cache=True)
-def analytic_hit(spheres, lights, ox, oy, oz, dx, dy, dz, tmax):
-    """Closest analytic hit: (t, kind, index) with kind 1 = sphere shape, 2 = area light, 0 = none."""
+def analytic_hit(spheres, lights, ox, oy, oz, dx, dy, dz, tmax, skip_light=-1):
+    """Closest analytic hit: (t, kind, index) with kind 1 = sphere shape, 2 = area light, 0 = none.
+
+    A shadow ray passes its target light as skip_light: the sampled point is on that light, and the
+    offset origin can meet the light's silhouette a little before the sampled distance."""
     ts, ks = closest_sphere(spheres, ox, oy, oz, dx, dy, dz, tmax)
-    tl, kl = intersect_lights(lights, ox, oy, oz, dx, dy, dz, min(tmax, ts))
+    tl, kl = intersect_lights(lights, ox, oy, oz, dx, dy, dz, min(tmax, ts), skip_light)
     if kl >= 0 and tl < ts:
         return tl, 2, kl
     if ks >= 0:

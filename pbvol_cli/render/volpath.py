@@ -91,6 +91,7 @@ class Paths:
         self.sh_tmax = np.zeros(n)
         self.sh_C = np.zeros((n, 3))
         self.sh_med = np.zeros(n, np.int32)
+        self.sh_light = np.zeros(n, np.int32)  # target light (ignored as an occluder)
         # triangle hits from the last cast
         self.hit_t = np.zeros(n)
         self.hit_prim = np.zeros(n, np.int32)
@@ -103,7 +104,7 @@ class Paths:
                 self.nscat, self.tpend, self.prev_pos, self.prev_pdf, self.eta_scale)
 
     def shadow(self):
-        return (self.sh_active, self.sh_pos, self.sh_dir, self.sh_tmax, self.sh_C, self.sh_med)
+        return (self.sh_active, self.sh_pos, self.sh_dir, self.sh_tmax, self.sh_C, self.sh_med, self.sh_light)
 
     def hits(self):
         return (self.hit_t, self.hit_prim, self.hit_u, self.hit_v, self.hit_ng)
@@ -192,10 +193,14 @@ def _nee(i, px, py, pz, kind, nx, ny, nz, dx, dy, dz, phase_kind, g, albedo, med
     diffuse point (kind 1, facing normal n, albedo RGB). Fills the path's shadow slot; True if it did."""
     lights = S[5]
     beta, rng, nscat = st[2], st[4], st[8]
-    sh_active, sh_pos, sh_dir, sh_tmax, sh_C, sh_med = sh
+    sh_active, sh_pos, sh_dir, sh_tmax, sh_C, sh_med, sh_light = sh
     nl = lights.shape[0]
     li = min(int(rand(rng, i) * nl), nl - 1)
     u1, u2 = rand(rng, i), rand(rng, i)
+    # The random numbers are drawn even when the order filter discards the contribution, so that a render
+    # restricted to some orders is exactly the matching part of the unrestricted render.
+    if not _order_ok(misc, nscat[i]):
+        return False
     wx, wy, wz, dist, Lr, Lg, Lb, pdf, delta = light_sample(lights, li, px, py, pz, u1, u2)
     if pdf <= 0.0 or (Lr == 0.0 and Lg == 0.0 and Lb == 0.0):
         return False
@@ -219,9 +224,9 @@ def _nee(i, px, py, pz, kind, nx, ny, nz, dx, dy, dz, phase_kind, g, albedo, med
     sh_C[i, 2] = beta[i, 2] * fb * Lb * scale
     sh_pos[i, 0], sh_pos[i, 1], sh_pos[i, 2] = ox, oy, oz
     sh_dir[i, 0], sh_dir[i, 1], sh_dir[i, 2] = wx, wy, wz
-    # Stop short of an area light's surface so that the light itself does not block the ray.
     sh_tmax[i] = dist * (1.0 - 1e-7) - 2.0 * eps if dist < INF else INF
     sh_med[i] = medium
+    sh_light[i] = li
     sh_active[i] = True
     return True
 
@@ -264,13 +269,15 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
                     status[i] = DEAD
                     return
                 kind, g = int(media[m, 6]), media[m, 7]
+                # MIS applies whenever the NEE strategy is on here, whether or not this sample contributed.
+                nee_on = media[m, 8] == 0.0 and nl > 0
                 did_nee = False
-                if media[m, 8] == 0.0 and nl > 0 and _order_ok(misc, nscat[i]):
+                if nee_on:
                     did_nee = _nee(i, px, py, pz, 0, 0.0, 0.0, 0.0, dx, dy, dz, kind, g, media[m, 0:3], m,
                                    S, misc, st, sh)
                 wx, wy, wz, pdf = phase_sample(kind, g, dx, dy, dz, rand(rng, i), rand(rng, i), rand(rng, i))
                 prev_pos[i, 0], prev_pos[i, 1], prev_pos[i, 2] = px, py, pz
-                prev_pdf[i] = pdf if did_nee else 0.0
+                prev_pdf[i] = pdf if nee_on else 0.0
                 if not _russian_roulette(misc, beta, eta_scale, depth, rng, i):
                     status[i] = DEAD
                     return
@@ -341,6 +348,7 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
             status[i] = DEAD
             return
         did_nee = False
+        nee_on = False
         if stype == DIELECTRIC:
             eta_i = surfaces[s, 4] if entering else surfaces[s, 3]
             eta_t = surfaces[s, 3] if entering else surfaces[s, 4]
@@ -366,7 +374,8 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
             prev_pdf[i] = 0.0
         else:  # DIFFUSE
             cur = medium[i]
-            if (cur < 0 or media[cur, 8] == 0.0) and nl > 0 and _order_ok(misc, nscat[i]):
+            nee_on = (cur < 0 or media[cur, 8] == 0.0) and nl > 0
+            if nee_on:
                 did_nee = _nee(i, hx, hy, hz, 1, fnx, fny, fnz, dx, dy, dz, 0, 0.0, surfaces[s, 5:8], cur,
                                S, misc, st, sh)
             wx, wy, wz = cosine_hemisphere(rand(rng, i), rand(rng, i), fnx, fny, fnz)
@@ -374,7 +383,7 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
             beta[i, 0] *= surfaces[s, 5]
             beta[i, 1] *= surfaces[s, 6]
             beta[i, 2] *= surfaces[s, 7]
-            prev_pdf[i] = c / math.pi if did_nee else 0.0
+            prev_pdf[i] = c / math.pi if nee_on else 0.0
             prev_pos[i, 0], prev_pos[i, 1], prev_pos[i, 2] = hx, hy, hz
         # side of the geometric surface the new direction leaves on decides the medium
         out_ext = wx * gx + wy * gy + wz * gz > 0.0
@@ -420,7 +429,7 @@ def advance_shadows(active, fresh_flags, S, misc, sh, hits, L):
 @njit(cache=True)
 def _shadow_advance(i, k, fresh_flags, S, misc, sh, hits, L):
     tri_surface, tri_normals, spheres, surfaces, media, lights, grid_params, grid_cells = S
-    sh_active, sh_pos, sh_dir, sh_tmax, sh_C, sh_med = sh
+    sh_active, sh_pos, sh_dir, sh_tmax, sh_C, sh_med, sh_light = sh
     hit_t, hit_prim, hit_u, hit_v, hit_ng = hits
     eps = misc[M_EPS]
     has_mesh = misc[M_HASMESH] > 0.0
@@ -430,7 +439,7 @@ def _shadow_advance(i, k, fresh_flags, S, misc, sh, hits, L):
         ox, oy, oz = sh_pos[i, 0], sh_pos[i, 1], sh_pos[i, 2]
         dx, dy, dz = sh_dir[i, 0], sh_dir[i, 1], sh_dir[i, 2]
         tmax = sh_tmax[i]
-        ta, akind, aidx = analytic_hit(spheres, lights, ox, oy, oz, dx, dy, dz, tmax)
+        ta, akind, aidx = analytic_hit(spheres, lights, ox, oy, oz, dx, dy, dz, tmax, sh_light[i])
         if fresh:
             tm, prim = hit_t[i], hit_prim[i]
             fresh = False

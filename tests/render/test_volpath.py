@@ -1,0 +1,183 @@
+"""The reference path tracer against closed forms, energy conservation and itself."""
+
+import math
+
+import numpy as np
+import pytest
+
+from conftest import build, camera, volpath
+
+WHITE_ENV = [{"type": "environment", "radiance": 1.0}]
+
+
+def _std_error(img):
+    """Standard error of the image mean, from the spread of the pixels (pixels are independent)."""
+    return img.std(axis=(0, 1)) / math.sqrt(img.shape[0] * img.shape[1])
+
+
+@pytest.mark.parametrize("eta", [1.0, 1.5])
+@pytest.mark.parametrize("g", [-0.5, 0.0, 0.9])
+def test_furnace_non_absorbing_sphere(tmp_path, eta, g):
+    """alpha = 1 inside a sphere under a uniform white environment: every pixel sees radiance 1."""
+    scene = {"camera": camera((16, 16)), "lights": WHITE_ENV,
+             "shapes": [{"type": "sphere", "radius": 1.0, "interface": "dielectric", "eta": eta,
+                         "medium": {"albedo": 1.0, "mean_free_path": 0.3, "g": g}}]}
+    img = volpath(build(tmp_path, scene), spp=32)
+    se = np.maximum(_std_error(img), 1e-12)
+    assert np.all(np.abs(img.mean(axis=(0, 1)) - 1.0) < 4 * se + 1e-12), (img.mean(axis=(0, 1)), se)
+    # no region is biased either: 4x4 blocks agree with 1 within their own noise
+    blocks = img.reshape(4, 4, 4, 4, 3).mean(axis=(1, 3))
+    block_se = img.reshape(4, 4, 4, 4, 3).std(axis=(1, 3)) / 4
+    assert np.all(np.abs(blocks - 1.0) <= 5 * block_se + 1e-12)
+
+
+def test_furnace_chromatic_medium_is_unbiased(tmp_path):
+    """Different sigma_t per channel (spectral MIS) with alpha = 1: still radiance 1 in every channel."""
+    scene = {"camera": camera((16, 16)), "lights": WHITE_ENV,
+             "shapes": [{"type": "sphere", "radius": 1.0, "interface": "null",
+                         "medium": {"sigma_a": 0.0, "sigma_s": [0.5, 3.0, 12.0], "g": 0.5}}]}
+    img = volpath(build(tmp_path, scene), spp=32)
+    assert np.all(np.abs(img.mean(axis=(0, 1)) - 1.0) < 4 * _std_error(img))
+
+
+def test_diffuse_sphere_under_white_environment(tmp_path):
+    """A convex Lambertian object under a uniform environment reflects albedo x radiance everywhere."""
+    alb = [0.2, 0.5, 0.8]
+    scene = {"camera": camera((16, 16), position=(0, 0, 2.5)), "lights": WHITE_ENV,
+             "shapes": [{"type": "sphere", "radius": 1.0, "interface": "diffuse", "albedo": alb}]}
+    img = volpath(build(tmp_path, scene), spp=16)
+    inside = img[4:12, 4:12].reshape(-1, 3)
+    se = inside.std(0) / math.sqrt(len(inside))
+    assert np.all(np.abs(inside.mean(0) - alb) < 4 * se + 1e-12)
+
+
+def test_diffuse_plane_under_sphere_light_matches_closed_form(tmp_path):
+    """Irradiance from a sphere light of radiance L, radius r, centre at distance D, angle theta to the
+    normal (fully above the horizon): E = pi L (r/D)^2 cos(theta). Exercises light sampling and MIS."""
+    L, r, h, a = 50.0, 0.3, 1.0, 0.6
+    # the camera sits between the light and the plane, looking down: the light is behind it
+    scene = {"camera": {"position": [0, 0.6, 0.0], "look_at": [0, 0, 0], "up": [0, 0, -1], "fov": 60,
+                        "resolution": [16, 16]},
+             "lights": [{"type": "sphere", "center": [0, h, 0], "radius": r, "radiance": L}],
+             "shapes": [{"type": "quad", "size": [10.0, 10.0], "interface": "diffuse", "albedo": a}]}
+    built = build(tmp_path, scene)
+    img = volpath(built, spp=64)
+    # expected radiance at each pixel: average over a sub-pixel grid of the camera's rays
+    cam = built.camera
+    W = H = 16
+    k = 8
+    expected = np.zeros((H, W))
+    for py in range(H):
+        for px in range(W):
+            acc = 0.0
+            for sy in range(k):
+                for sx in range(k):
+                    x = 2 * (px + (sx + 0.5) / k) / W - 1
+                    y = 1 - 2 * (py + (sy + 0.5) / k) / H
+                    d = cam[3:6] + x * cam[6:9] + y * cam[9:12]
+                    p = cam[:3] - d * cam[1] / d[1]  # hit on the plane y = 0
+                    to_c = np.array([0, h, 0]) - p
+                    D = np.linalg.norm(to_c)
+                    acc += a / math.pi * math.pi * L * (r / D) ** 2 * (to_c[1] / D)
+            expected[py, px] = acc / (k * k)
+    got, exp = img[..., 0].ravel(), expected.ravel()
+    assert np.abs(got.mean() - exp.mean()) < 4 * got.std() / math.sqrt(got.size)
+    assert np.mean(((got - exp) / exp) ** 2) < 0.01
+
+
+def _single_scattering_reference(built, sigma_s, sigma_t, g, light_dir, E, R, k=6):
+    """Order-1 radiance of a null-bounded sphere of radius R at the origin under a directional light,
+    by quadrature along each camera ray (independent of the renderer's sampling)."""
+    cam = built.camera
+    W, H = int(cam[12]), int(cam[13])
+    u = -np.asarray(light_dir, float) / np.linalg.norm(light_dir)  # toward the light
+    xs, ws = np.polynomial.legendre.leggauss(48)
+    out = np.zeros((H, W, 3))
+    covered = np.ones((H, W), bool)
+    for py in range(H):
+        for px in range(W):
+            acc = np.zeros(3)
+            for sy in range(k):
+                for sx in range(k):
+                    x = 2 * (px + (sx + 0.5) / k) / W - 1
+                    y = 1 - 2 * (py + (sy + 0.5) / k) / H
+                    d = cam[3:6] + x * cam[6:9] + y * cam[9:12]
+                    d /= np.linalg.norm(d)
+                    o = cam[:3]
+                    b = o @ d
+                    disc = b * b - (o @ o - R * R)
+                    if disc <= 0:
+                        covered[py, px] = False
+                        continue
+                    t0, t1 = -b - math.sqrt(disc), -b + math.sqrt(disc)
+                    t = 0.5 * (t1 - t0) * xs + 0.5 * (t1 + t0)
+                    P = o + t[:, None] * d
+                    pu = P @ u
+                    s = -pu + np.sqrt(np.maximum(pu * pu - (np.sum(P * P, 1) - R * R), 0))
+                    mu = d @ u  # cos between propagation of the light (-u) and toward the camera (-d)
+                    ph = (1 - g * g) / (4 * math.pi * (1 + g * g - 2 * g * mu) ** 1.5)
+                    f = sigma_s[None] * np.exp(-sigma_t[None] * ((t - t0)[:, None] + s[:, None])) * ph * E
+                    acc += 0.5 * (t1 - t0) * (ws[:, None] * f).sum(0)
+            out[py, px] = acc / (k * k)
+    return out, covered
+
+
+def test_single_scattering_matches_quadrature(tmp_path):
+    """--orders 1 of an index-matched sphere under a directional light against a numerical integral."""
+    sigma_s, sigma_a, g = np.array([0.6, 1.0, 2.0]), np.array([0.2, 0.5, 0.1]), 0.5
+    light_dir = [-1.0, -0.5, -0.7]
+    scene = {"camera": camera((12, 12), position=(0, 0, 3.5), fov=40),
+             "lights": [{"type": "directional", "direction": light_dir, "irradiance": 2.0}],
+             "shapes": [{"type": "sphere", "radius": 1.0, "interface": "null",
+                         "medium": {"sigma_a": sigma_a.tolist(), "sigma_s": sigma_s.tolist(), "g": g}}]}
+    built = build(tmp_path, scene)
+    a = volpath(built, spp=128, seed=1, orders="1")
+    b = volpath(built, spp=128, seed=2, orders="1")
+    ref, covered = _single_scattering_reference(built, sigma_s, sigma_s + sigma_a, g, light_dir, 2.0, 1.0)
+    img = 0.5 * (a + b)
+    # per-pixel noise of the average of the two renders, estimated from their difference
+    noise_var = ((a - b) ** 2 / 4)[covered].mean(0)
+    err = ((img - ref) ** 2)[covered].mean(0)
+    # mean squared error = noise variance + bias^2: with no bias it is ~noise_var (chi-square, 2 sigma)
+    n = covered.sum()
+    assert np.all(err < noise_var * (1 + 2 * math.sqrt(2 / n)) + 1e-3 * ref[covered].mean(0) ** 2), (err, noise_var)
+    assert np.all(np.abs(img[covered].mean(0) / ref[covered].mean(0) - 1) < 0.02)
+
+
+def test_orders_partition_the_full_image(tmp_path):
+    """Orders 0, 1, 2 and 3+ rendered separately with the same seed add up to the full render."""
+    scene = {"camera": camera((12, 12)), "lights": WHITE_ENV + [{"type": "sphere", "center": [2, 2, 2],
+                                                                  "radius": 0.3, "radiance": 20.0}],
+             "shapes": [{"type": "sphere", "radius": 1.0, "interface": "null",
+                         "medium": {"albedo": [0.9, 0.7, 0.5], "mean_free_path": 0.5, "g": 0.3}}]}
+    built = build(tmp_path, scene)
+    full = volpath(built, spp=8, seed=3)
+    parts = [volpath(built, spp=8, seed=3, orders=o) for o in ("0", "1", "2", "3+")]
+    assert np.allclose(sum(parts), full, rtol=1e-9, atol=1e-12)
+    assert np.allclose(volpath(built, spp=8, seed=3, orders="1,2"), parts[1] + parts[2], rtol=1e-9, atol=1e-12)
+    assert all(p.sum() > 0 for p in parts)
+
+
+def test_same_seed_same_image_bit_for_bit(tmp_path):
+    scene = {"camera": camera((12, 12)), "lights": WHITE_ENV,
+             "shapes": [{"type": "sphere", "radius": 1.0, "interface": "dielectric", "eta": 1.3,
+                         "medium": {"albedo": [0.9, 0.7, 0.5], "mean_free_path": 0.5, "g": 0.3}},
+                        {"type": "quad", "center": [0, -1, 0], "size": [6, 6]}]}
+    built = build(tmp_path, scene)
+    a = volpath(built, spp=4, seed=11)
+    b = volpath(built, spp=4, seed=11)
+    c = volpath(built, spp=4, seed=12)
+    assert np.array_equal(a, b)
+    assert not np.array_equal(a, c)
+    # the batch size does not change the image
+    assert np.array_equal(a, volpath(built, spp=4, seed=11, batch=1024))
+
+
+def test_mesh_occluder_blocks_light_in_a_scene_without_media(tmp_path):
+    """A box between a diffuse floor and the light casts a shadow (no ray may skip a triangle cast)."""
+    scene = {"camera": {"position": [0, 0.5, 0.0], "look_at": [0, 0, 0], "up": [0, 0, -1], "fov": 1.0,
+                        "resolution": [2, 2]},
+             "lights": [{"type": "sphere", "center": [0, 3, 0], "radius": 0.2, "radiance": 50.0}],
+             "shapes": [{"type": "quad", "size": [10.0, 10.0], "interface": "diffuse"},
+                        {"type": "box", "center": [0, 1.5, 0], "size": [1.0, 0.2, 1.0]}]}
+    assert volpath(build(tmp_path, scene), spp=64).max() == 0.0
