@@ -180,4 +180,8 @@ def test_mesh_occluder_blocks_light_in_a_scene_without_media(tmp_path):
              "lights": [{"type": "sphere", "center": [0, 3, 0], "radius": 0.2, "radiance": 50.0}],
              "shapes": [{"type": "quad", "size": [10.0, 10.0], "interface": "diffuse"},
                         {"type": "box", "center": [0, 1.5, 0], "size": [1.0, 0.2, 1.0]}]}
-    assert volpath(build(tmp_path, scene), spp=64).max() == 0.0
+    # direct light only (max_depth 1): the floor under the box sees no light at all
+    assert volpath(build(tmp_path, scene), spp=64, max_depth=1).max() == 0.0
+    # and with the box moved aside it does
+    scene["shapes"][1]["center"] = [3, 1.5, 0]
+    assert volpath(build(tmp_path, scene), spp=64, max_depth=1).min() > 0.0
