@@ -496,20 +496,27 @@ def _format_loc(loc: tuple) -> str:
 
 
 def _describe(err: ValidationError) -> tuple[str, str]:
-    """(field, message) for the first error of a ValidationError, pydantic's noise removed."""
-    e = err.errors(include_url=False)[0]
-    loc = tuple(p for p in e["loc"] if p not in PYDANTIC_UNION_TAGS)
+    """(field, message) for the most relevant error of a ValidationError, pydantic's noise removed.
+
+    For a medium given inline (the str | Material union), the Material branch's error is the one the
+    user needs, not "should be a valid string".
+    """
+    errors = err.errors(include_url=False)
+    in_material = [e for e in errors if any("Material" in str(p) for p in e["loc"])]
+    e = in_material[0] if in_material else errors[0]
+    loc = tuple(p for p in e["loc"] if p not in PYDANTIC_UNION_TAGS and "Material" not in str(p))
     msg = e["msg"].removeprefix("Value error, ")
     if e["type"] == "extra_forbidden":
         msg = "unknown field"
     elif e["type"] == "missing":
         msg = "required field is missing"
     elif e["type"] == "union_tag_invalid":
-        msg = f"unknown type {e['input'].get('type')!r}; " + msg.split(";")[-1].strip() if isinstance(e.get("input"), dict) else msg
+        tags = e.get("ctx", {}).get("expected_tags", "")
+        msg = f"unknown type {e['ctx'].get('tag')!r}; expected one of {tags}"
     elif e["type"] == "union_tag_not_found":
         msg = "missing 'type' field"
-    more = len(err.errors()) - 1
-    if more:
+    more = len({tuple(x["loc"]) for x in errors}) - (1 if not in_material else len({tuple(x["loc"]) for x in in_material}))
+    if more > 0 and not in_material:
         msg += f" (and {more} more error{'s' if more > 1 else ''})"
     return _format_loc(loc), msg
 

@@ -1,0 +1,151 @@
+"""The command line as a user meets it: bad input, compare, materials, check, render."""
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from conftest import camera, write_scene
+from pbvol_cli.imageio import read_exr, write_exr
+from pbvol_cli.main import app
+
+runner = CliRunner()
+
+GOOD = {"camera": camera((8, 8)), "render": {"spp": 2},
+        "lights": [{"type": "environment", "radiance": 1.0}],
+        "shapes": [{"type": "sphere", "radius": 1.0, "interface": "dielectric", "eta": 1.5, "medium": "wax"}]}
+
+
+def _one_line_error(result, *fragments):
+    assert result.exit_code != 0
+    err = result.stderr.strip()
+    assert err.startswith("error: ") and "\n" not in err, err
+    assert "Traceback" not in result.output
+    for f in fragments:
+        assert f in err, (f, err)
+
+
+def _with_shape(**fields):
+    s = json.loads(json.dumps(GOOD))
+    s["shapes"][0].update(fields)
+    return s
+
+
+@pytest.mark.parametrize("scene,fragments", [
+    (_with_shape(medium={"albedo": 1.2, "mean_free_path": 1.0}), ["shapes[0].medium.albedo", "[0, 1]"]),
+    (_with_shape(medium={"albedo": 0.5, "mean_free_path": -1.0}), ["shapes[0].medium.mean_free_path", "positive"]),
+    (_with_shape(medium={"albedo": 0.5, "mean_free_path": 1.0, "g": 1.0}), ["shapes[0].medium.g", "|g| < 1"]),
+    (_with_shape(eta=0.0), ["shapes[0].eta", "eta > 0"]),
+    (_with_shape(medium="chocolate"), ["shapes[0].medium", "unknown material 'chocolate'", "wax"]),
+    (_with_shape(colour=1), ["shapes[0].colour", "unknown field"]),
+    (_with_shape(type="teapot"), ["shapes[0]", "unknown type 'teapot'"]),
+    ({**GOOD, "shapes": [{"type": "mesh", "file": "missing.obj"}]}, ["shapes[0].file", "not found"]),
+    ({**GOOD, "camera": {**GOOD["camera"], "fov": 200}}, ["camera.fov", "(0, 180)"]),
+    ({**GOOD, "lights": []}, ["at least one light"]),
+])
+def test_bad_scene_gives_one_line_error_naming_file_and_field(tmp_path, scene, fragments):
+    path = write_scene(tmp_path, scene)
+    for cmd in (["check", str(path)], ["render", str(path), "-o", str(tmp_path / "x.exr"), "-q"]):
+        _one_line_error(runner.invoke(app, cmd), str(path), *fragments)
+    assert not (tmp_path / "x.exr").exists()
+
+
+def test_toml_syntax_error(tmp_path):
+    p = tmp_path / "broken.toml"
+    p.write_text("[camera\nposition = [0, 0, 1]\n")
+    _one_line_error(runner.invoke(app, ["check", str(p)]), str(p), "TOML syntax error", "line 1")
+
+
+def test_missing_scene_file(tmp_path):
+    _one_line_error(runner.invoke(app, ["check", str(tmp_path / "none.toml")]), "none.toml", "file not found")
+
+
+def test_bad_material_file_is_named(tmp_path):
+    (tmp_path / "mine.toml").write_text("albedo = 0.5\nmean_free_path = 0\n")
+    path = write_scene(tmp_path, _with_shape(medium="mine.toml"))
+    _one_line_error(runner.invoke(app, ["check", str(path)]), "mine.toml", "mean_free_path")
+
+
+def test_bad_orders_and_resolution(tmp_path):
+    path = write_scene(tmp_path, GOOD)
+    out = str(tmp_path / "x.exr")
+    _one_line_error(runner.invoke(app, ["render", str(path), "-o", out, "--orders", "7"]), "--orders", "'7'")
+    _one_line_error(runner.invoke(app, ["render", str(path), "-o", out, "--resolution", "big"]), "--resolution")
+    _one_line_error(runner.invoke(app, ["render", str(path), "-o", str(tmp_path / "x.png")]), ".exr")
+
+
+def test_check_summarises_the_scene(tmp_path):
+    path = write_scene(tmp_path, GOOD)
+    r = runner.invoke(app, ["check", str(path)])
+    assert r.exit_code == 0, r.output
+    assert "shapes: 1" in r.stdout and "lights: 1" in r.stdout and "wax" in r.stdout
+    assert "mean free paths" in r.stdout
+
+
+def test_materials_lists_every_preset_with_its_source():
+    r = runner.invoke(app, ["materials"])
+    assert r.exit_code == 0
+    for name in ("oil", "wine", "wax", "milk", "espresso", "bumpy_sphere", "marble", "ketchup", "skin1"):
+        assert f"\n{name}\n" in "\n" + r.stdout
+    assert r.stdout.count("source:") == 18
+
+
+def test_compare_known_mse_json_and_gate(tmp_path):
+    a = np.full((4, 6, 3), 0.5, np.float32)
+    b = a.copy()
+    b[..., 1] += 0.2  # MSE = 0.2^2 / 3 over all channels
+    write_exr(tmp_path / "a.exr", a)
+    write_exr(tmp_path / "b.exr", b)
+    r = runner.invoke(app, ["compare", str(tmp_path / "a.exr"), str(tmp_path / "b.exr"), "--json",
+                            "--diff", str(tmp_path / "d.png")])
+    assert r.exit_code == 0, r.output
+    m = json.loads(r.stdout)
+    assert m["mse"] == pytest.approx(0.04 / 3, rel=1e-6)
+    assert m["per_channel"]["G"]["mse"] == pytest.approx(0.04, rel=1e-6)
+    assert m["per_channel"]["R"]["mse"] == 0.0
+    assert (tmp_path / "d.png").exists()
+    gate = runner.invoke(app, ["compare", str(tmp_path / "a.exr"), str(tmp_path / "b.exr"), "--fail-above", "0.01"])
+    assert gate.exit_code == 1
+    ok = runner.invoke(app, ["compare", str(tmp_path / "a.exr"), str(tmp_path / "b.exr"), "--fail-above", "0.1"])
+    assert ok.exit_code == 0
+
+
+def test_compare_errors(tmp_path):
+    write_exr(tmp_path / "a.exr", np.zeros((4, 4, 3), np.float32))
+    write_exr(tmp_path / "b.exr", np.zeros((4, 5, 3), np.float32))
+    nan = np.zeros((4, 4, 3), np.float32)
+    nan[0, 0, 0] = np.nan
+    write_exr(tmp_path / "n.exr", nan)
+    _one_line_error(runner.invoke(app, ["compare", str(tmp_path / "a.exr"), str(tmp_path / "b.exr")]), "4x4", "5x4")
+    _one_line_error(runner.invoke(app, ["compare", str(tmp_path / "n.exr"), str(tmp_path / "a.exr")]), "n.exr", "NaN")
+    _one_line_error(runner.invoke(app, ["compare", str(tmp_path / "zz.exr"), str(tmp_path / "a.exr")]), "zz.exr")
+
+
+def test_render_writes_exr_with_metadata_preview_and_reference_mse(tmp_path):
+    path = write_scene(tmp_path, GOOD)
+    out, png = tmp_path / "out.exr", tmp_path / "out.png"
+    r = runner.invoke(app, ["render", str(path), "-o", str(out), "--preview", str(png), "--seed", "5", "-q"])
+    assert r.exit_code == 0, r.output
+    img, meta = read_exr(out)
+    assert img.shape == (8, 8, 3) and np.all(np.isfinite(img))
+    assert meta["method"] == "volpath" and meta["spp"] == 2 and meta["seed"] == 5
+    assert len(meta["scene_hash"]) == 16 and "time_s" in meta and meta["version"]
+    assert png.exists()
+    assert "M samples/s" in r.stdout and "peak memory" in r.stdout
+    # same seed, same image; the reference MSE is printed (0 against itself)
+    out2 = tmp_path / "out2.exr"
+    r2 = runner.invoke(app, ["render", str(path), "-o", str(out2), "--seed", "5", "-q", "--reference", str(out)])
+    assert r2.exit_code == 0, r2.output
+    assert np.array_equal(read_exr(out2)[0], img)
+    assert "MSE against reference: 0 " in r2.stdout
+
+
+def test_render_overrides(tmp_path):
+    path = write_scene(tmp_path, GOOD)
+    out = tmp_path / "o.exr"
+    r = runner.invoke(app, ["render", str(path), "-o", str(out), "--resolution", "6x4", "--spp", "3",
+                            "--threads", "1", "--orders", "0", "-q"])
+    assert r.exit_code == 0, r.output
+    img, meta = read_exr(out)
+    assert img.shape == (4, 6, 3) and meta["spp"] == 3 and meta["threads"] == 1 and meta["orders"] == "0"
