@@ -19,6 +19,7 @@ from typing import Annotated, Any, ClassVar, Literal, Union
 
 import numpy as np
 from pydantic import (
+    AfterValidator,
     BaseModel,
     BeforeValidator,
     ConfigDict,
@@ -46,6 +47,37 @@ RGB = Annotated[tuple[float, float, float], BeforeValidator(_rgb)]
 Vec3 = tuple[float, float, float]
 
 
+def _albedo(v):
+    if not all(0.0 <= a <= 1.0 for a in v):
+        raise ValueError(f"expected albedo in [0, 1] per channel, got {list(v)}")
+    return v
+
+
+def _positive_lengths(v):
+    if not all(math.isfinite(x) and x > 0 for x in v):
+        raise ValueError(f"expected positive lengths, got {list(v)}")
+    return v
+
+
+def _non_negative(v):
+    if not all(math.isfinite(x) and x >= 0 for x in v):
+        raise ValueError(f"expected non-negative coefficients, got {list(v)}")
+    return v
+
+
+def _eta(v):
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"expected eta > 0, got {v}")
+    return v
+
+
+# Constrained types, one place per rule.
+Albedo = Annotated[RGB, AfterValidator(_albedo)]
+Lengths3 = Annotated[RGB, AfterValidator(_positive_lengths)]
+Coefficients = Annotated[RGB, AfterValidator(_non_negative)]
+Eta = Annotated[float, AfterValidator(_eta)]
+
+
 def _finite(v: tuple[float, ...], what: str) -> tuple[float, ...]:
     if not all(math.isfinite(x) for x in v):
         raise ValueError(f"expected finite {what}, got {list(v)}")
@@ -65,50 +97,22 @@ class Material(Strict):
     name: str | None = None
     source: str | None = None
     length_unit: Literal["scene", "mm", "cm", "m", "um", "in"] = "scene"
-    albedo: RGB | None = None
-    mean_free_path: RGB | None = None
-    sigma_a: RGB | None = None
-    sigma_s: RGB | None = None
-    sigma_s_reduced: RGB | None = None
+    albedo: Albedo | None = None
+    mean_free_path: Lengths3 | None = None
+    sigma_a: Coefficients | None = None
+    sigma_s: Coefficients | None = None
+    sigma_s_reduced: Coefficients | None = None
     g: float = 0.0
     phase: Literal["isotropic", "hg", "schlick", "rayleigh", "mie_hazy", "mie_murky"] = "hg"
-    eta: float = 1.0
+    eta: Eta = 1.0
     scale: float = 1.0
-    diffuse_reflectance: RGB | None = None  # informational (Jensen et al. 2001 table)
-
-    @field_validator("albedo")
-    @classmethod
-    def _albedo(cls, v):
-        if v is not None and not all(0.0 <= a <= 1.0 for a in v):
-            raise ValueError(f"expected albedo in [0, 1] per channel, got {list(v)}")
-        return v
-
-    @field_validator("mean_free_path")
-    @classmethod
-    def _mfp(cls, v):
-        if v is not None and not all(math.isfinite(x) and x > 0 for x in v):
-            raise ValueError(f"expected positive lengths, got {list(v)}")
-        return v
-
-    @field_validator("sigma_a", "sigma_s", "sigma_s_reduced")
-    @classmethod
-    def _sigma(cls, v):
-        if v is not None and not all(math.isfinite(x) and x >= 0 for x in v):
-            raise ValueError(f"expected non-negative coefficients, got {list(v)}")
-        return v
+    diffuse_reflectance: Albedo | None = None  # informational (Jensen et al. 2001 table)
 
     @field_validator("g")
     @classmethod
     def _g(cls, v):
         if not (math.isfinite(v) and -1.0 < v < 1.0):
             raise ValueError(f"expected |g| < 1, got {v}")
-        return v
-
-    @field_validator("eta")
-    @classmethod
-    def _eta(cls, v):
-        if not (math.isfinite(v) and v > 0):
-            raise ValueError(f"expected eta > 0, got {v}")
         return v
 
     @field_validator("scale")
@@ -342,26 +346,12 @@ class Transform(Strict):
 class ShapeBase(Strict):
     name: str | None = None
     interface: Literal["diffuse", "dielectric", "mirror", "null"] = "diffuse"
-    albedo: RGB = (0.8, 0.8, 0.8)  # diffuse albedo, or mirror reflectance
-    eta: float | None = None  # interior index of a dielectric; default: the medium's eta, else 1.5
+    albedo: Albedo = (0.8, 0.8, 0.8)  # diffuse albedo, or mirror reflectance
+    eta: Eta | None = None  # interior index of a dielectric; default: the medium's eta, else 1.5
     medium: MediumRef | None = None  # interior medium
     exterior_medium: MediumRef | None = None
-    exterior_eta: float = 1.0
+    exterior_eta: Eta = 1.0
     transform: Transform | None = None
-
-    @field_validator("albedo")
-    @classmethod
-    def _alb(cls, v):
-        if not all(0.0 <= a <= 1.0 for a in v):
-            raise ValueError(f"expected albedo in [0, 1] per channel, got {list(v)}")
-        return v
-
-    @field_validator("eta", "exterior_eta")
-    @classmethod
-    def _eta(cls, v):
-        if v is not None and not (math.isfinite(v) and v > 0):
-            raise ValueError(f"expected eta > 0, got {v}")
-        return v
 
 
 class SphereShape(ShapeBase):
@@ -387,14 +377,7 @@ class BumpySphereShape(ShapeBase):
 class BoxShape(ShapeBase):
     type: Literal["box"]
     center: Vec3 = (0.0, 0.0, 0.0)
-    size: Vec3 = (1.0, 1.0, 1.0)
-
-    @field_validator("size")
-    @classmethod
-    def _pos(cls, v):
-        if not all(s > 0 for s in v):
-            raise ValueError(f"expected positive lengths, got {list(v)}")
-        return v
+    size: Lengths3 = (1.0, 1.0, 1.0)
 
 
 class CylinderShape(ShapeBase):
@@ -412,14 +395,7 @@ class QuadShape(ShapeBase):
 
     type: Literal["quad"]
     center: Vec3 = (0.0, 0.0, 0.0)
-    size: tuple[float, float] = (1.0, 1.0)
-
-    @field_validator("size")
-    @classmethod
-    def _pos(cls, v):
-        if not all(s > 0 for s in v):
-            raise ValueError(f"expected positive lengths, got {list(v)}")
-        return v
+    size: Annotated[tuple[float, float], AfterValidator(_positive_lengths)] = (1.0, 1.0)
 
 
 class CupShape(ShapeBase):
@@ -438,7 +414,7 @@ class CupShape(ShapeBase):
     bottom: float = Field(0.2, gt=0, description="bottom thickness")
     fill: float = Field(0.0, ge=0, le=1, description="liquid level as a fraction of the inner height")
     liquid: MediumRef | None = None
-    liquid_eta: float | None = None
+    liquid_eta: Eta | None = None
     segments: int = Field(256, ge=8)
 
     @model_validator(mode="after")
