@@ -221,6 +221,26 @@ class VolpathSettings(Strict):
     batch_paths: int = Field(1 << 19, ge=1024, description="paths traced per wavefront batch")
 
 
+class LutSettings(Strict):
+    """The multiple-scattering table (precompute-lut). Lengths in mean free paths."""
+
+    particles: int | None = Field(None, ge=1000, description="default: as many as the collision budget allows")
+    collision_budget: int = Field(80_000_000, ge=100_000)
+    seed: int = Field(0, ge=0)
+    extent: float = Field(40.0, gt=0, description="table half-size, mean free paths")
+    sh_order: int = Field(12, ge=2, le=24)
+    merge_tol: float = Field(0.05, ge=0, description="quadtree merge tolerance on lobe shapes")
+
+    def table_settings(self, particles: int | None = None, seed: int | None = None):
+        from pbvol_cli.multiple_scattering.layout import Layout
+        from pbvol_cli.multiple_scattering.table import TableSettings
+
+        return TableSettings(particles=particles or self.particles, collision_budget=self.collision_budget,
+                             seed=self.seed if seed is None else seed,
+                             layout=Layout(extent=self.extent, kill_radius=2.0 * self.extent),
+                             sh_order=self.sh_order, merge_tol=self.merge_tol)
+
+
 class RenderSettings(Strict):
     spp: int = Field(64, ge=1)
     max_depth: int = Field(1000, ge=1, description="maximum number of scattering events and surface bounces")
@@ -228,6 +248,7 @@ class RenderSettings(Strict):
     threads: int | None = Field(None, ge=1)
     time_limit: float | None = Field(None, gt=0, description="seconds; stops after the batch that passes it")
     volpath: VolpathSettings = VolpathSettings()
+    lut: LutSettings = LutSettings()
 
 
 # --------------------------------------------------------------------------- lights

@@ -69,6 +69,28 @@ def render(
     typer.echo(format_summary(summary))
 
 
+@app.command("precompute-lut")
+def precompute_lut(
+    file: Annotated[Path, typer.Argument(help="material file, or scene file (then every medium in it)")],
+    particles: Annotated[Optional[int], typer.Option(min=1000, help="particles per table (default: a collision budget)")] = None,
+    seed: Annotated[Optional[int], typer.Option(min=0, help="random seed")] = None,
+    threads: Annotated[Optional[int], typer.Option(min=1, help="worker threads")] = None,
+    force: Annotated[bool, typer.Option("--force", help="rebuild even when a cached table matches")] = False,
+    cache_dir: Annotated[Optional[Path], typer.Option(help="cache directory (else $PBVOL_CACHE_DIR, else ~/.cache/pbvol)")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no progress bar")] = False,
+):
+    """Precompute the multiple-scattering tables (one per distinct albedo of each medium) into the cache."""
+    from pbvol_cli.pipeline.cache import cache_dir as resolve_cache
+    from pbvol_cli.pipeline.precompute import precompute
+    from pbvol_cli.pipeline.render import set_threads
+
+    try:
+        set_threads(threads)
+        precompute(file, resolve_cache(cache_dir), particles, seed, force, quiet, typer.echo)
+    except (PbvolError, OSError) as e:
+        _fail(e)
+
+
 @app.command()
 def compare(
     image: Annotated[Path, typer.Argument(help="image to evaluate")],

@@ -1,0 +1,58 @@
+"""The precompute-lut stage: multiple-scattering tables in the cache, keyed by what determines them.
+
+One table per distinct (albedo, g, phase) of a medium's RGB channels. A cached entry is reused when its key
+matches; a damaged entry (unreadable, incomplete, inconsistent) is rebuilt, not trusted.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pbvol_cli.multiple_scattering.table import MSTable, TableSettings, build_table, resolve_particles
+from pbvol_cli.pipeline.cache import key_of, load_npz, save_npz_atomic
+
+
+@dataclass
+class TableResult:
+    table: MSTable
+    path: Path
+    reused: bool
+    seconds: float
+
+
+def table_path(cache: Path, alpha: float, g: float, phase_kind: int, settings: TableSettings) -> Path:
+    key = key_of(kind="ms-table", alpha=round(float(alpha), 9), g=round(float(g), 9), phase=int(phase_kind),
+                 **settings.key_parts())
+    return Path(cache) / "lut" / f"ms_a{alpha:.4f}_g{g:+.3f}_{key}.npz"
+
+
+def get_table(alpha: float, g: float, phase_kind: int, settings: TableSettings, cache: Path, force: bool = False,
+              progress=None) -> TableResult:
+    """The table for (alpha, g, phase), from the cache or built and stored (atomically)."""
+    t0 = time.perf_counter()
+    settings = resolve_particles(alpha, g, phase_kind, settings)
+    path = table_path(cache, alpha, g, phase_kind, settings)
+    if not force:
+        data = load_npz(path, MSTable.REQUIRED)
+        if data is not None:
+            try:
+                return TableResult(MSTable.from_arrays(data), path, True, time.perf_counter() - t0)
+            except (ValueError, KeyError, TypeError):
+                pass  # damaged: rebuild below
+    table, _ = build_table(alpha, g, phase_kind, settings, progress)
+    save_npz_atomic(path, **table.arrays())
+    return TableResult(table, path, False, time.perf_counter() - t0)
+
+
+def channel_tables(sigma_a: np.ndarray, sigma_s: np.ndarray) -> list[tuple[float, list[int]]]:
+    """Distinct albedos of a medium and the RGB channels that use each (channels without extinction skipped)."""
+    out: dict[float, list[int]] = {}
+    for c in range(3):
+        st = sigma_a[c] + sigma_s[c]
+        if st > 0:
+            out.setdefault(round(float(sigma_s[c] / st), 12), []).append(c)
+    return sorted(out.items())
