@@ -59,6 +59,7 @@ class BuiltScene:
     bbox: np.ndarray  # (2, 3)
     medium_info: list[MediumInfo] = field(default_factory=list)
     surface_names: list[str] = field(default_factory=list)
+    surface_shape: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # shape index of each surface
     shape_triangles: list[tuple[str, int]] = field(default_factory=list)
 
     @property
@@ -110,6 +111,7 @@ def build_scene(scene: C.Scene, path: Path, resolution: tuple[int, int] | None =
     media = _Media(scene, path)
     surfaces: list[list[float]] = []
     names: list[str] = []
+    owner: list[int] = []
     verts, faces, tri_surf, tri_norm, spheres = [], [], [], [], []
     shape_tris: list[tuple[str, int]] = []
     nv = 0
@@ -119,6 +121,7 @@ def build_scene(scene: C.Scene, path: Path, resolution: tuple[int, int] | None =
             kind = NULL
         surfaces.append([kind, m_in, m_out, eta_in, eta_out, *albedo])
         names.append(name)
+        owner.append(i)
         return len(surfaces) - 1
 
     for i, shape in enumerate(scene.shapes):
@@ -226,4 +229,5 @@ def build_scene(scene: C.Scene, path: Path, resolution: tuple[int, int] | None =
         camera=camera_params(scene.camera, resolution),
         grid_params=gp, grid_cells=gc, eps=eps, extent=extent, bbox=bbox,
         medium_info=media.info, surface_names=names, shape_triangles=shape_tris,
+        surface_shape=np.asarray(owner, np.int64),
     )

@@ -8,7 +8,7 @@ like a sphere).
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from pbvol_cli.physics.lights import _sphere_hit, intersect_lights
 
@@ -69,3 +69,38 @@ def mesh_shading_normal(tri_normals, prim, u, v):
     nz = w * tri_normals[prim, 0, 2] + u * tri_normals[prim, 1, 2] + v * tri_normals[prim, 2, 2]
     inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
     return nx * inv, ny * inv, nz * inv
+
+
+@njit(parallel=True, cache=True)
+def _merge_hits(spheres, tri_surface, tri_normals, o, d, t_mesh, prim, u, v, ng_mesh, t_out, surf_out, ng_out, ns_out):
+    for k in prange(o.shape[0]):
+        ts, ks = closest_sphere(spheres, o[k, 0], o[k, 1], o[k, 2], d[k, 0], d[k, 1], d[k, 2], t_mesh[k])
+        if ks >= 0:
+            t_out[k] = ts
+            surf_out[k] = int(spheres[ks, 4])
+            for c in range(3):
+                ng_out[k, c] = (o[k, c] + ts * d[k, c] - spheres[ks, c]) / spheres[ks, 3]
+                ns_out[k, c] = ng_out[k, c]
+        elif prim[k] >= 0:
+            t_out[k] = t_mesh[k]
+            surf_out[k] = tri_surface[prim[k]]
+            gx, gy, gz = float(ng_mesh[k, 0]), float(ng_mesh[k, 1]), float(ng_mesh[k, 2])
+            inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
+            ng_out[k, 0], ng_out[k, 1], ng_out[k, 2] = gx * inv, gy * inv, gz * inv
+            ns_out[k, 0], ns_out[k, 1], ns_out[k, 2] = mesh_shading_normal(tri_normals, prim[k], float(u[k]), float(v[k]))
+        else:
+            t_out[k] = INF
+            surf_out[k] = -1
+
+
+def closest_surface_hits(caster, built, origins: np.ndarray, dirs: np.ndarray):
+    """Closest surface (triangle or analytic sphere; lights ignored) along each ray, batched.
+
+    Returns (t [inf = miss], surface id [-1], geometric normal (exterior), shading normal (exterior))."""
+    t, prim, u, v, ng = caster.closest_hit(origins, dirs)
+    n = len(origins)
+    t_out, surf = np.empty(n), np.empty(n, np.int64)
+    ng_out, ns_out = np.zeros((n, 3)), np.zeros((n, 3))
+    _merge_hits(built.spheres, built.tri_surface, built.tri_normals, np.ascontiguousarray(origins, np.float64),
+                np.ascontiguousarray(dirs, np.float64), t, prim, u, v, ng, t_out, surf, ng_out, ns_out)
+    return t_out, surf, ng_out, ns_out

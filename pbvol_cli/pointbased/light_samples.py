@@ -1,0 +1,247 @@
+"""Light surface samples and light volume samples (Wang et al. 2016, sec. 3.4-3.5), read as photon beams.
+
+Surface sample j (blue noise on the outer layer of a medium-holding object, area A_j) is connected to each light:
+irradiance E_j (direct, with visibility). The transmitted part (Fresnel T) refracts inward and is followed through
+transparent layers (transmitted branch, Fresnel-weighted) to the medium: a beam of power Phi_j = E_j A_j T, cross-
+section A_perp = A_j |cos theta_t| (at the medium's entry). In the medium the beam is cut into segments, each a
+volume sample (start, direction, length, RGB power at its start, cross-section); at the far side the Fresnel-
+reflected part continues (internal reflection, total internal reflection included) until it is negligible.
+
+Units: power in W (scene radiance units x scene area), lengths in scene units.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit, prange
+
+from pbvol_cli.geometry.raycast import TriangleCaster
+from pbvol_cli.geometry.scene_build import DIELECTRIC, NULL, BuiltScene
+from pbvol_cli.physics.fresnel import fresnel_dielectric, reflect, refract
+from pbvol_cli.physics.lights import light_sample
+from pbvol_cli.physics.sampling import rand, seed_state
+from pbvol_cli.pointbased.surface_samples import poisson_disk
+from pbvol_cli.render.intersect import closest_surface_hits
+
+
+@dataclass
+class LightSamples:
+    s_pos: np.ndarray  # (n, 3) surface samples on outer layers
+    s_nrm: np.ndarray  # (n, 3) exterior normals
+    s_surface: np.ndarray  # (n,) surface ids
+    s_area: np.ndarray  # (n,) area each represents
+    s_irradiance: np.ndarray  # (n, 3) direct irradiance from the lights (W / area), visibility included
+    v_start: np.ndarray  # (m, 3) segment starts
+    v_dir: np.ndarray  # (m, 3) propagation directions (unit)
+    v_len: np.ndarray  # (m,) segment lengths
+    v_power: np.ndarray  # (m, 3) beam power at the segment start (W)
+    v_area: np.ndarray  # (m,) beam cross-section
+    v_medium: np.ndarray  # (m,) medium ids
+
+    FIELDS = ("s_pos", "s_nrm", "s_surface", "s_area", "s_irradiance", "v_start", "v_dir", "v_len", "v_power",
+              "v_area", "v_medium")
+
+    def arrays(self) -> dict:
+        return {k: getattr(self, k) for k in self.FIELDS}
+
+    @classmethod
+    def from_arrays(cls, d: dict) -> "LightSamples":
+        ls = cls(**{k: d[k] for k in cls.FIELDS})
+        n, m = len(ls.s_pos), len(ls.v_start)
+        shapes_ok = (ls.s_nrm.shape == (n, 3) and ls.s_irradiance.shape == (n, 3) and ls.v_dir.shape == (m, 3)
+                     and ls.v_power.shape == (m, 3) and len(ls.v_len) == m and len(ls.v_area) == m)
+        if not shapes_ok or not all(np.all(np.isfinite(getattr(ls, k))) for k in ("v_start", "v_power", "v_len")):
+            raise ValueError("inconsistent light samples")
+        return ls
+
+
+def outer_layer_surfaces(bs: BuiltScene) -> np.ndarray:
+    """Surfaces on the outside of medium-holding shapes: those of a shape that bounds a medium somewhere, with
+    vacuum on their exterior (a glass of liquid: the glass's outside and the liquid's free surface)."""
+    surf = bs.surfaces
+    holds = {int(bs.surface_shape[k]) for k in range(len(surf)) if surf[k, 1] >= 0 or surf[k, 2] >= 0}
+    return np.array([k for k in range(len(surf)) if int(bs.surface_shape[k]) in holds and surf[k, 2] < 0
+                     and surf[k, 0] in (DIELECTRIC, NULL)], np.int64)
+
+
+# ----------------------------------------------------------------------------- kernels
+
+
+@njit(parallel=True, cache=True)
+def _connect(lights, li, pos, nrm, eps, seed, wdir, dist, E, ok):
+    """Sample light li from each surface sample: direction, distance, irradiance; ok = faces the light."""
+    for k in prange(pos.shape[0]):
+        st = np.empty(1, np.uint64)
+        st[0] = seed_state(seed, 0x11 + li, k)
+        wx, wy, wz, d, Lr, Lg, Lb, pdf, delta = light_sample(lights, li, pos[k, 0], pos[k, 1], pos[k, 2],
+                                                             rand(st, 0), rand(st, 0))
+        c = wx * nrm[k, 0] + wy * nrm[k, 1] + wz * nrm[k, 2]
+        ok[k] = pdf > 0.0 and c > 0.0
+        if ok[k]:
+            wdir[k, 0], wdir[k, 1], wdir[k, 2] = wx, wy, wz
+            dist[k] = d
+            E[k, 0], E[k, 1], E[k, 2] = Lr * c / pdf, Lg * c / pdf, Lb * c / pdf
+
+
+@njit(parallel=True, cache=True)
+def _cross(surfaces, pos, d, power, medium, cosx, ng, ns, t, surf, eps, alive):
+    """Move each beam to its hit and transmit it through the interface (Fresnel T); kill on anything else."""
+    for k in prange(pos.shape[0]):
+        if not alive[k]:
+            continue
+        s = surf[k]
+        if s < 0 or (surfaces[s, 0] != DIELECTRIC and surfaces[s, 0] != NULL):
+            alive[k] = False
+            continue
+        dx, dy, dz = d[k, 0], d[k, 1], d[k, 2]
+        entering = dx * ng[k, 0] + dy * ng[k, 1] + dz * ng[k, 2] < 0.0
+        sg = 1.0 if entering else -1.0
+        nx, ny, nz = sg * ns[k, 0], sg * ns[k, 1], sg * ns[k, 2]
+        gx, gy, gz = sg * ng[k, 0], sg * ng[k, 1], sg * ng[k, 2]
+        eta_i = surfaces[s, 4] if entering else surfaces[s, 3]
+        eta_t = surfaces[s, 3] if entering else surfaces[s, 4]
+        cos_i = max(-(dx * nx + dy * ny + dz * nz), 1e-9)
+        F, cos_t = fresnel_dielectric(cos_i, eta_t / eta_i)
+        if F >= 1.0:
+            alive[k] = False
+            continue
+        wx, wy, wz = refract(dx, dy, dz, nx, ny, nz, eta_t / eta_i, cos_i, cos_t)
+        for c in range(3):
+            power[k, c] *= 1.0 - F
+            pos[k, c] = pos[k, c] + t[k] * d[k, c] - eps * (gx if c == 0 else (gy if c == 1 else gz))
+        d[k, 0], d[k, 1], d[k, 2] = wx, wy, wz
+        medium[k] = int(surfaces[s, 1]) if entering else int(surfaces[s, 2])
+        cosx[k] = cos_t
+
+
+@njit(parallel=True, cache=True)
+def _segments(media, surfaces, pos, d, power, medium, area, t, surf, ng, ns, eps, nseg, p_min,
+              o_start, o_dir, o_len, o_power, o_area, o_medium, alive):
+    """Cut each beam's path to the boundary into nseg volume samples (equal fractions of 1 - exp(-sigma t) in the
+    most penetrating channel), then reflect it internally (Fresnel F) or end it."""
+    for k in prange(pos.shape[0]):
+        base = k * nseg
+        m = medium[k]
+        tex = t[k]
+        if not alive[k] or tex == np.inf:
+            alive[k] = False
+            for q in range(nseg):
+                o_len[base + q] = 0.0
+            continue
+        smin = np.inf
+        for c in range(3):
+            smin = min(smin, media[m, c] + media[m, 3 + c])
+        frac = -math.expm1(-smin * tex) if smin > 0.0 else 1.0
+        t0 = 0.0
+        for q in range(nseg):
+            u = (q + 1.0) / nseg * frac
+            t1 = -math.log1p(-u) / smin if smin > 0.0 else tex * (q + 1.0) / nseg
+            if q == nseg - 1:
+                t1 = tex
+            i = base + q
+            for c in range(3):
+                o_start[i, c] = pos[k, c] + t0 * d[k, c]
+                o_dir[i, c] = d[k, c]
+                o_power[i, c] = power[k, c] * math.exp(-(media[m, c] + media[m, 3 + c]) * t0)
+            o_len[i] = t1 - t0
+            o_area[i] = area[k]
+            o_medium[i] = m
+            t0 = t1
+        # internal reflection at the exit
+        s = surf[k]
+        if surfaces[s, 0] != DIELECTRIC:
+            alive[k] = False
+            continue
+        dx, dy, dz = d[k, 0], d[k, 1], d[k, 2]
+        entering = dx * ng[k, 0] + dy * ng[k, 1] + dz * ng[k, 2] < 0.0
+        sg = 1.0 if entering else -1.0
+        nx, ny, nz = sg * ns[k, 0], sg * ns[k, 1], sg * ns[k, 2]
+        gx, gy, gz = sg * ng[k, 0], sg * ng[k, 1], sg * ng[k, 2]
+        eta_i = surfaces[s, 4] if entering else surfaces[s, 3]
+        eta_t = surfaces[s, 3] if entering else surfaces[s, 4]
+        cos_i = max(-(dx * nx + dy * ny + dz * nz), 1e-9)
+        F, _ = fresnel_dielectric(cos_i, eta_t / eta_i)
+        pmax = 0.0
+        for c in range(3):
+            power[k, c] *= math.exp(-(media[m, c] + media[m, 3 + c]) * tex) * F
+            pmax = max(pmax, power[k, c])
+        if pmax < p_min[k]:
+            alive[k] = False
+            continue
+        wx, wy, wz = reflect(dx, dy, dz, nx, ny, nz)
+        for c in range(3):
+            pos[k, c] = pos[k, c] + tex * d[k, c] + eps * (gx if c == 0 else (gy if c == 1 else gz))
+        d[k, 0], d[k, 1], d[k, 2] = wx, wy, wz
+
+
+# ----------------------------------------------------------------------------- driver
+
+
+def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max_reflections: int,
+                        max_layers: int, seed: int, threads: int = 2) -> LightSamples:
+    """Surface samples on every medium-holding object's outer layer, their beams and the volume samples."""
+    outer = outer_layer_surfaces(bs)
+    if len(outer) == 0:
+        raise ValueError("no medium-holding object with a transparent boundary to place light samples on")
+    tri = np.isin(bs.tri_surface, outer)
+    sph = bs.spheres[np.isin(bs.spheres[:, 4].astype(np.int64), outer)]
+    pos, nrm, sid, area, _ = poisson_disk(bs.vertices, bs.faces[tri], bs.tri_normals[tri], bs.tri_surface[tri], sph,
+                                          surface_samples, seed)
+    n = len(pos)
+    caster = TriangleCaster(bs.vertices, bs.faces, threads)
+    eps = bs.eps
+    irr = np.zeros((n, 3))
+    beams = []  # (pos, dir, power, medium, cos_t)
+    for li in range(len(bs.lights)):
+        wdir, dist, E, ok = np.zeros((n, 3)), np.zeros(n), np.zeros((n, 3)), np.zeros(n, np.bool_)
+        _connect(bs.lights, li, pos, nrm, eps, seed, wdir, dist, E, ok)
+        idx = np.flatnonzero(ok)
+        t, _, _, _ = closest_surface_hits(caster, bs, pos[idx] + eps * nrm[idx], wdir[idx])
+        vis = idx[t >= dist[idx] * (1 - 1e-7) - 2 * eps]
+        irr[vis] += E[vis]
+        # refract into the object through the outer surface (a hit at distance 0: the sample itself)
+        bpos, bdir = pos[vis].copy(), -wdir[vis]
+        bpow = E[vis] * area
+        bmed = np.full(len(vis), -1, np.int64)
+        bcos = np.zeros(len(vis))
+        alive = np.ones(len(vis), np.bool_)
+        _cross(bs.surfaces, bpos, bdir, bpow, bmed, bcos, nrm[vis], nrm[vis], np.zeros(len(vis)), sid[vis], eps,
+               alive)
+        # through transparent layers until a medium is reached
+        for _ in range(max_layers):
+            walk = np.flatnonzero(alive & (bmed < 0))
+            if len(walk) == 0:
+                break
+            t, s, ng, ns = closest_surface_hits(caster, bs, bpos[walk], bdir[walk])
+            sub = alive[walk].copy()
+            p_, d_, w_, m_, c_ = bpos[walk], bdir[walk], bpow[walk], bmed[walk], bcos[walk]
+            _cross(bs.surfaces, p_, d_, w_, m_, c_, ng, ns, t, s, eps, sub)
+            bpos[walk], bdir[walk], bpow[walk], bmed[walk], bcos[walk], alive[walk] = p_, d_, w_, m_, c_, sub
+        keep = alive & (bmed >= 0)
+        beams.append((bpos[keep], bdir[keep], bpow[keep], bmed[keep], area * np.abs(bcos[keep])))
+    bpos, bdir, bpow, bmed, barea = (np.concatenate([b[i] for b in beams]) for i in range(5))
+    p_min = 1e-4 * bpow.max(axis=1) if len(bpow) else np.zeros(0)
+    out = {k: [] for k in ("start", "dir", "len", "power", "area", "medium")}
+    alive = np.ones(len(bpos), np.bool_)
+    for _ in range(max_reflections + 1):
+        act = np.flatnonzero(alive)
+        if len(act) == 0:
+            break
+        t, s, ng, ns = closest_surface_hits(caster, bs, bpos[act], bdir[act])
+        m = len(act) * segments
+        o = (np.zeros((m, 3)), np.zeros((m, 3)), np.zeros(m), np.zeros((m, 3)), np.zeros(m), np.zeros(m, np.int64))
+        p_, d_, w_, a_ = bpos[act], bdir[act], bpow[act], alive[act].copy()
+        _segments(bs.media, bs.surfaces, p_, d_, w_, bmed[act], barea[act], t, s, ng, ns, eps, segments,
+                  p_min[act], *o, a_)
+        bpos[act], bdir[act], bpow[act], alive[act] = p_, d_, w_, a_
+        valid = o[2] > 0
+        for key, arr in zip(out, o):
+            out[key].append(arr[valid])
+    caster.close()
+    cat = {k: (np.concatenate(v) if v else np.zeros((0, 3) if k in ("start", "dir", "power") else 0))
+           for k, v in out.items()}
+    return LightSamples(pos, nrm, sid, np.full(n, area), irr, cat["start"], cat["dir"], cat["len"], cat["power"],
+                        cat["area"], cat["medium"].astype(np.int64))
