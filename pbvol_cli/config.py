@@ -241,6 +241,20 @@ class LutSettings(Strict):
                              sh_order=self.sh_order, merge_tol=self.merge_tol)
 
 
+class PblSettings(Strict):
+    """The point-based method: light samples and their use along camera rays (defaults: what the benchmark uses)."""
+
+    surface_samples: int = Field(20000, ge=16, description="blue-noise samples on each outer layer (about)")
+    segments_per_beam: int = Field(16, ge=1, description="volume samples per beam and internal reflection")
+    max_internal_reflections: int = Field(8, ge=0)
+    max_layers: int = Field(8, ge=1, description="transparent interfaces a beam may cross to reach the medium")
+    kmax: int = Field(16, ge=1, description="points per camera-ray segment in a medium (eq. 9)")
+    tree_cut: float = Field(0.2, gt=0, description="solid angle x 4 pi phase below which a node is used whole")
+    clamp: float = Field(0.02, ge=0, description="minimum distance in the 1/r^2 of double scattering, scene units")
+    max_split_depth: int = Field(8, ge=1, description="specular interfaces a camera path may split at")
+    components: tuple[Literal["single", "double", "multiple"], ...] = ("single", "double", "multiple")
+
+
 class RenderSettings(Strict):
     spp: int = Field(64, ge=1)
     max_depth: int = Field(1000, ge=1, description="maximum number of scattering events and surface bounces")
@@ -249,6 +263,7 @@ class RenderSettings(Strict):
     time_limit: float | None = Field(None, gt=0, description="seconds; stops after the batch that passes it")
     volpath: VolpathSettings = VolpathSettings()
     lut: LutSettings = LutSettings()
+    pbl: PblSettings = PblSettings()
 
 
 # --------------------------------------------------------------------------- lights

@@ -40,7 +40,7 @@ def _parse_resolution(text: str | None) -> tuple[int, int] | None:
 def render(
     scene: Annotated[Path, typer.Argument(help="scene file (TOML)")],
     output: Annotated[Path, typer.Option("-o", "--output", help="output image (.exr)")],
-    method: Annotated[str, typer.Option(help="rendering method: volpath")] = "volpath",
+    method: Annotated[str, typer.Option(help="rendering method: volpath (reference path tracer) or pbl (point-based)")] = "volpath",
     spp: Annotated[Optional[int], typer.Option(min=1, help="samples per pixel (overrides the scene)")] = None,
     seed: Annotated[Optional[int], typer.Option(min=0, help="random seed (overrides the scene)")] = None,
     threads: Annotated[Optional[int], typer.Option(min=1, help="worker threads")] = None,
@@ -48,6 +48,7 @@ def render(
     resolution: Annotated[Optional[str], typer.Option(help="WIDTHxHEIGHT (overrides the scene)")] = None,
     orders: Annotated[Optional[str], typer.Option(help="keep only paths with these numbers of volume scattering events: 0, 1, 2, 3+, or a comma list")] = None,
     max_depth: Annotated[Optional[int], typer.Option(min=1, help="maximum path depth (overrides the scene)")] = None,
+    components: Annotated[Optional[str], typer.Option(help="pbl: comma list of single, double, multiple")] = None,
     preview: Annotated[Optional[Path], typer.Option(help="also write a tone-mapped sRGB PNG here")] = None,
     exposure: Annotated[float, typer.Option(help="preview exposure in stops")] = 0.0,
     reference: Annotated[Optional[Path], typer.Option(help="print the MSE against this image at the end")] = None,
@@ -62,7 +63,7 @@ def render(
         resolve_cache(cache_dir)
         opts = RenderOptions(method=method, spp=spp, seed=seed, threads=threads, time_limit=time_limit,
                              resolution=_parse_resolution(resolution), orders=orders, max_depth=max_depth,
-                             quiet=quiet)
+                             components=components, cache_dir=cache_dir, quiet=quiet)
         summary = render_scene(scene, output, opts, preview=preview, reference=reference, exposure=exposure)
     except (PbvolError, OSError) as e:
         _fail(e)
@@ -89,6 +90,34 @@ def precompute_lut(
         precompute(file, resolve_cache(cache_dir), particles, seed, force, quiet, typer.echo)
     except (PbvolError, OSError) as e:
         _fail(e)
+
+
+@app.command("place-samples")
+def place_samples(
+    scene: Annotated[Path, typer.Argument(help="scene file (TOML)")],
+    seed: Annotated[Optional[int], typer.Option(min=0, help="random seed (overrides the scene)")] = None,
+    threads: Annotated[Optional[int], typer.Option(min=1, help="worker threads")] = None,
+    force: Annotated[bool, typer.Option("--force", help="rebuild even when cached samples match")] = False,
+    cache_dir: Annotated[Optional[Path], typer.Option(help="cache directory (else $PBVOL_CACHE_DIR, else ~/.cache/pbvol)")] = None,
+):
+    """Place the light surface and volume samples of the point-based method and cache them."""
+    from pbvol_cli import config as C
+    from pbvol_cli.geometry.scene_build import build_scene
+    from pbvol_cli.pipeline.cache import cache_dir as resolve_cache
+    from pbvol_cli.pipeline.render import peak_memory_mb, set_threads
+    from pbvol_cli.pipeline.samples import get_light_samples
+
+    try:
+        n = set_threads(threads)
+        sc = C.load_scene(scene)
+        built = build_scene(sc, scene)
+        r = get_light_samples(built, sc.render.pbl, sc.render.seed if seed is None else seed, resolve_cache(cache_dir),
+                              n, force)
+    except (PbvolError, OSError) as e:
+        _fail(e)
+    what = "reused cached samples" if r.reused else f"placed in {r.seconds:.2f} s"
+    typer.echo(f"{scene}: {what}: {len(r.samples.s_pos)} surface samples, {len(r.samples.v_start)} volume samples, "
+               f"peak memory {peak_memory_mb():.0f} MiB -> {r.path}")
 
 
 @app.command()

@@ -99,12 +99,39 @@ class MSTable:
         return (self.params, self.intensity, self.leaf, self.leaf_kind, self.leaf_slot, self.coef, self.qlobe,
                 self.qmax, self.order)
 
+    def grid_lobes(self) -> np.ndarray:
+        """(n_leaves, n_dirs) float32: every leaf's shape at the direction-bin centres (SH evaluated, grid
+        decoded). The renderer's form: on disk the table is compact, in memory look-ups are bilinear only."""
+        nt, nph = int(self.params[4]), int(self.params[5])
+        te, pe = np.linspace(0, np.pi, nt + 1), np.linspace(0, np.pi, nph + 1)
+        tc, pc = 0.5 * (te[1:] + te[:-1]), 0.5 * (pe[1:] + pe[:-1])
+        out = np.zeros((len(self.leaf_kind), nt * nph), np.float32)
+        sh = self.leaf_kind == 0
+        if sh.any():
+            B = lobes.sh_at(self.order, *np.meshgrid(tc, pc, indexing="ij"))
+            out[sh] = np.maximum(self.coef[self.leaf_slot[sh]].astype(np.float64) @ B.T, 0.0)
+        if (~sh).any():
+            out[~sh] = lobes.dequantise_all(self.qlobe, self.qmax)[self.leaf_slot[~sh]]
+        return out
+
+    def render_args(self):
+        """The arrays grid_lookup / scaled_lookup take: (params, intensity, leaf, grid lobes)."""
+        return (self.params, self.intensity, self.leaf, self.grid_lobes())
+
     def lookup(self, rho, z, cos_t, phi):
         """S in table units at arrays of positions and local directions (vectorised convenience)."""
         rho, z, cos_t, phi = np.broadcast_arrays(*(np.asarray(a, float) for a in (rho, z, cos_t, phi)))
         out = np.empty(rho.shape)
         _lookup_many(*self.kernel_args(), rho.ravel(), z.ravel(), cos_t.ravel(), phi.ravel(), out.reshape(-1))
         return out
+
+
+def empty_table() -> "MSTable":
+    """A table that looks up 0 everywhere (a component switched off, or a channel without extinction)."""
+    lay = Layout(n_rho=2, n_z=2, n_theta=2, n_phi=2)
+    return MSTable(0.0, 0.0, 1, lay.params(), np.zeros((2, 2), np.float32), np.zeros((2, 2), np.int32),
+                   np.ones(1, np.int8), np.zeros(1, np.int32), np.zeros((0, lobes.sh_count(2)), np.float32),
+                   np.zeros((1, 4), np.uint8), np.zeros(1, np.float32), 2)
 
 
 # ----------------------------------------------------------------------------- look-ups
@@ -182,10 +209,38 @@ def _lookup_many(params, intensity, leaf, leaf_kind, leaf_slot, coef, qlobe, qma
 
 
 @njit(cache=True)
-def scaled_lookup(tab, power, sigma_t, rx, ry, rz, ax, ay, az, wx, wy, wz, basis):
+def grid_lookup(params, intensity, leaf, globe, rho, z, cos_t, phi):
+    """ms_lookup on the expanded form (MSTable.render_args): bilinear in cells and in direction bins."""
+    R = params[0]
+    if rho >= R or abs(z) >= R:
+        return 0.0
+    nr, nz = intensity.shape
+    nt, nph = int(params[4]), int(params[5])
+    i0, i1, fr = _interp_index(warp_rho(params, rho), nr)
+    j0, j1, fz = _interp_index(warp_z(params, z), nz)
+    th = math.acos(max(-1.0, min(1.0, cos_t)))
+    t0, t1, ft = _interp_index(th / math.pi * nt, nt)
+    f0, f1, fp = _interp_index(abs(phi) / math.pi * nph, nph)
+    a00, a01, a10, a11 = t0 * nph + f0, t0 * nph + f1, t1 * nph + f0, t1 * nph + f1
+    w00, w01, w10, w11 = (1 - ft) * (1 - fp), (1 - ft) * fp, ft * (1 - fp), ft * fp
+    total = 0.0
+    for c in range(4):
+        i = i0 if c < 2 else i1
+        j = j0 if c % 2 == 0 else j1
+        w = (1.0 - fr if c < 2 else fr) * (1.0 - fz if c % 2 == 0 else fz)
+        if w == 0.0:
+            continue
+        lf = leaf[i, j]
+        shape = w00 * globe[lf, a00] + w01 * globe[lf, a01] + w10 * globe[lf, a10] + w11 * globe[lf, a11]
+        total += w * intensity[i, j] * shape
+    return total
+
+
+@njit(cache=True)
+def scaled_lookup(tab, power, sigma_t, rx, ry, rz, ax, ay, az, wx, wy, wz):
     """In-scattered radiance per unit length at offset r from a source of `power` emitting along the unit axis a,
     toward propagation direction w, in a medium of extinction sigma_t: S_real = power sigma_t^3 S(sigma_t r, w).
-    tab is MSTable.kernel_args(). This is the one place where the table's units meet a real medium."""
+    tab is MSTable.render_args(). This is the one place where the table's units meet a real medium."""
     z = rx * ax + ry * ay + rz * az
     px, py, pz = rx - z * ax, ry - z * ay, rz - z * az
     rho = math.sqrt(px * px + py * py + pz * pz)
@@ -197,8 +252,7 @@ def scaled_lookup(tab, power, sigma_t, rx, ry, rz, ax, ay, az, wx, wy, wz, basis
         phi = abs(math.atan2(wx * fx + wy * fy + wz * fz, wx * ex + wy * ey + wz * ez))
     else:
         phi = 0.0
-    s = ms_lookup(tab[0], tab[1], tab[2], tab[3], tab[4], tab[5], tab[6], tab[7], tab[8], sigma_t * rho,
-                  sigma_t * z, cos_t, phi, basis)
+    s = grid_lookup(tab[0], tab[1], tab[2], tab[3], sigma_t * rho, sigma_t * z, cos_t, phi)
     return power * sigma_t ** 3 * s
 
 

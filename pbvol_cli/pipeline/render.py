@@ -17,7 +17,7 @@ from pbvol_cli import __version__
 from pbvol_cli import config as C
 from pbvol_cli.errors import PbvolError
 
-METHODS = ("volpath",)
+METHODS = ("volpath", "pbl")
 
 
 @dataclass
@@ -30,6 +30,8 @@ class RenderOptions:
     resolution: tuple[int, int] | None = None
     orders: str | None = None
     max_depth: int | None = None
+    components: str | None = None
+    cache_dir: Path | None = None
     quiet: bool = False
 
 
@@ -101,26 +103,33 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
     if ref_img is not None and ref_img.shape[:2] != (H, W):
         raise PbvolError(f"{reference}: reference is {ref_img.shape[1]}x{ref_img.shape[0]}, render is {W}x{H}")
 
-    from pbvol_cli.render.volpath import orders_mask, render_volpath
+    layers, stages = None, {}
+    if opts.method == "pbl":
+        img, layers, stats, stages = _render_pbl(scene, built, spp, seed, threads, opts)
+        spp_done = stats["spp"]
+    else:
+        from pbvol_cli.render.volpath import orders_mask, render_volpath
 
-    try:
-        orders_mask(opts.orders)
-    except ValueError as e:
-        raise PbvolError(f"--orders: {e}") from None
-    prog, update = _progress(opts.quiet, f"volpath {W}x{H} {spp} spp")
-    with prog:
-        img, spp_done, stats = render_volpath(
-            built, spp, seed, max_depth, rs.volpath.rr_depth, opts.orders, rs.volpath.batch_paths, threads,
-            time_limit, update,
-        )
+        try:
+            orders_mask(opts.orders)
+        except ValueError as e:
+            raise PbvolError(f"--orders: {e}") from None
+        prog, update = _progress(opts.quiet, f"volpath {W}x{H} {spp} spp")
+        with prog:
+            img, spp_done, stats = render_volpath(
+                built, spp, seed, max_depth, rs.volpath.rr_depth, opts.orders, rs.volpath.batch_paths, threads,
+                time_limit, update,
+            )
     elapsed = stats["time_s"]
     meta = {
         "method": opts.method, "spp": spp_done, "seed": seed, "threads": threads,
         "time_s": round(elapsed, 4), "build_s": round(t_build, 4), "version": __version__,
         "scene": str(scene_path), "scene_hash": scene_hash(scene, built),
         "orders": opts.orders or "all", "max_depth": max_depth,
+        **{f"stage_{k}": round(v, 4) for k, v in stages.items()},
     }
-    write_exr(out_path, img.astype(np.float32), meta)
+    write_exr(out_path, img.astype(np.float32), meta,
+              layers={k: v.astype(np.float32) for k, v in layers.items()} if layers else None)
     if preview is not None:
         write_preview_png(preview, img, exposure)
     summary = {
@@ -135,6 +144,58 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
         summary["mse"] = m["mse"]
         summary["rel_mse"] = m["rel_mse"]
     return summary
+
+
+def _render_pbl(scene, built, spp, seed, threads, opts):
+    """Light samples and tables from the cache (built when missing), then the camera pass."""
+    from pbvol_cli.pipeline.cache import cache_dir
+    from pbvol_cli.pipeline.lut import get_table
+    from pbvol_cli.pipeline.samples import get_light_samples
+    from pbvol_cli.physics.phase import KINDS
+    from pbvol_cli.render.pbl import COMPONENTS, MediumData, render_pbl
+
+    pbl = scene.render.pbl
+    comps = pbl.components
+    if opts.components:
+        comps = tuple(c.strip() for c in opts.components.split(",") if c.strip())
+        bad = [c for c in comps if c not in COMPONENTS]
+        if bad:
+            raise PbvolError(f"--components: unknown {', '.join(bad)}; expected a comma list of {', '.join(COMPONENTS)}")
+    cache = cache_dir(opts.cache_dir)
+    stages = {}
+    t0 = time.perf_counter()
+    res = get_light_samples(built, pbl, seed, cache, threads)
+    stages["samples_s"] = time.perf_counter() - t0
+    stages["samples_reused"] = float(res.reused)
+    t0 = time.perf_counter()
+    media_data = {}
+    for m, info in enumerate(built.medium_info):
+        kind = KINDS[info.material.phase]
+        st = built.media[m, 0:3] + built.media[m, 3:6]
+        tables = []
+        for c in range(3):
+            alpha = float(built.media[m, 3 + c] / st[c]) if st[c] > 0 else 0.0
+            if "multiple" in comps and st[c] > 0:
+                tables.append(get_table(round(alpha, 12), info.material.g, kind, scene.render.lut.table_settings(),
+                                        cache).table)
+            else:
+                tables.append(None)
+        filler = next((t for t in tables if t is not None), None)
+        if filler is None:
+            from pbvol_cli.multiple_scattering.table import empty_table
+
+            filler = empty_table()
+        media_data[m] = MediumData(res.samples, m, built.media[m], [t or filler for t in tables])
+    stages["tables_s"] = time.perf_counter() - t0
+    W, H = int(built.camera[12]), int(built.camera[13])
+    prog, update = _progress(opts.quiet, f"pbl {W}x{H} {spp} spp")
+    settings = {"kmax": pbl.kmax, "tree_cut": pbl.tree_cut, "clamp": pbl.clamp, "components": comps,
+                "max_split_depth": pbl.max_split_depth}
+    with prog:
+        img, layers, stats = render_pbl(built, media_data, spp, seed, settings, threads, update)
+    stages["render_s"] = stats["time_s"]
+    stages["peak_memory_mb"] = peak_memory_mb()
+    return img, layers, stats, stages
 
 
 def format_summary(s: dict) -> str:

@@ -8,7 +8,7 @@ import pytest
 from pbvol_cli.multiple_scattering import lobes
 from pbvol_cli.multiple_scattering.layout import Layout
 from pbvol_cli.multiple_scattering.simulate import simulate
-from pbvol_cli.multiple_scattering.table import TableSettings, build_table, scaled_lookup
+from pbvol_cli.multiple_scattering.table import TableSettings, build_table, grid_lookup, scaled_lookup
 
 HG, ISO = 1, 0
 SMALL = Layout(extent=10.0, n_rho=16, n_z=32, n_theta=9, n_phi=9, kill_radius=20.0)
@@ -129,6 +129,20 @@ def test_lookup_is_exact_at_cell_and_direction_centres(small_table):
     assert table.lookup(10.5, 0.0, 1.0, 0.0) == 0.0  # outside the extent
 
 
+def test_render_form_equals_the_compact_form_at_centres(small_table):
+    """The renderer's expanded grid lobes give the compact table's values at cell and direction-bin centres."""
+    table, _ = small_table
+    args = table.render_args()
+    rho_c, z_c = SMALL.cell_centres()
+    tc, pc = SMALL.dir_centres()
+    rng = np.random.default_rng(8)
+    for _ in range(300):
+        i, j, a, b = rng.integers(SMALL.n_rho), rng.integers(SMALL.n_z), rng.integers(SMALL.n_theta), rng.integers(SMALL.n_phi)
+        want = table.lookup(rho_c[i], z_c[j], math.cos(tc[a]), pc[b])
+        assert grid_lookup(*args, rho_c[i], z_c[j], math.cos(tc[a]), pc[b]) == pytest.approx(float(want), rel=1e-5,
+                                                                                           abs=1e-30)
+
+
 def test_compact_form_is_close_to_the_dense_table(small_table):
     table, _ = small_table
     assert table.metrics["err_compact_vs_dense_99"] < 0.05
@@ -153,7 +167,6 @@ def test_mirror_symmetry_for_an_isotropic_source():
 def test_scaled_lookup_is_the_single_place_of_units(small_table):
     """S_real(x, w) = Phi sigma_t^3 S(sigma_t x, w) in the source's frame, for any orientation of the axis."""
     table, _ = small_table
-    basis = np.empty(table.coef.shape[1])
     rng = np.random.default_rng(2)
     for _ in range(50):
         axis = rng.normal(size=3)
@@ -162,19 +175,20 @@ def test_scaled_lookup_is_the_single_place_of_units(small_table):
         w = rng.normal(size=3)
         w /= np.linalg.norm(w)
         phi_pow, st = rng.uniform(0.5, 3), rng.uniform(0.3, 3)
-        got = scaled_lookup(table.kernel_args(), phi_pow, st, *r, *axis, *w, basis)
+        got = scaled_lookup(table.render_args(), phi_pow, st, *r, *axis, *w)
         z = r @ axis
         rp = r - z * axis
         rho = np.linalg.norm(rp)
         e_rho = rp / rho
         e_phi = np.cross(axis, e_rho)
-        ref = phi_pow * st ** 3 * table.lookup(st * rho, st * z, w @ axis, math.atan2(w @ e_phi, w @ e_rho))
+        ref = phi_pow * st ** 3 * grid_lookup(*table.render_args(), st * rho, st * z, w @ axis,
+                                              math.atan2(w @ e_phi, w @ e_rho))
         assert got == pytest.approx(float(ref), rel=1e-9, abs=1e-300)
         # rotating position and direction together about the axis changes nothing
         ang = rng.uniform(0, 2 * np.pi)
         K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
         Rm = np.eye(3) + math.sin(ang) * K + (1 - math.cos(ang)) * K @ K
-        rot = scaled_lookup(table.kernel_args(), phi_pow, st, *(Rm @ r), *axis, *(Rm @ w), basis)
+        rot = scaled_lookup(table.render_args(), phi_pow, st, *(Rm @ r), *axis, *(Rm @ w))
         assert rot == pytest.approx(got, rel=1e-6, abs=1e-300)
 
 

@@ -1,0 +1,61 @@
+"""The place-samples stage: light surface and volume samples of a scene, cached by what determines them."""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pbvol_cli import config as C
+from pbvol_cli.errors import PbvolError
+from pbvol_cli.pipeline.cache import key_of, load_npz, save_npz_atomic
+
+FORMAT_VERSION = 1
+
+
+@dataclass
+class SamplesResult:
+    samples: object  # LightSamples
+    path: Path
+    reused: bool
+    seconds: float
+
+
+def geometry_hash(built) -> str:
+    """Hash of what light samples depend on: geometry, surfaces, media, lights (not the camera or spp)."""
+    h = hashlib.sha256()
+    for arr in (built.vertices, built.faces, built.tri_surface, built.tri_normals, built.spheres, built.surfaces,
+                built.media, built.lights):
+        h.update(np.ascontiguousarray(arr).tobytes())
+    return h.hexdigest()[:20]
+
+
+def samples_path(cache: Path, built, pbl: C.PblSettings, seed: int) -> Path:
+    key = key_of(kind="light-samples", geometry=geometry_hash(built), surface_samples=pbl.surface_samples,
+                 segments=pbl.segments_per_beam, reflections=pbl.max_internal_reflections, layers=pbl.max_layers,
+                 seed=seed, version=FORMAT_VERSION)
+    return Path(cache) / "samples" / f"light_samples_{key}.npz"
+
+
+def get_light_samples(built, pbl: C.PblSettings, seed: int, cache: Path, threads: int, force: bool = False):
+    from pbvol_cli.pointbased.light_samples import LightSamples, place_light_samples
+
+    t0 = time.perf_counter()
+    path = samples_path(cache, built, pbl, seed)
+    if not force:
+        data = load_npz(path, LightSamples.FIELDS)
+        if data is not None:
+            try:
+                return SamplesResult(LightSamples.from_arrays(data), path, True, time.perf_counter() - t0)
+            except (ValueError, TypeError, KeyError):
+                pass  # damaged: rebuild
+    try:
+        ls = place_light_samples(built, pbl.surface_samples, pbl.segments_per_beam, pbl.max_internal_reflections,
+                                 pbl.max_layers, seed, threads)
+    except ValueError as e:
+        raise PbvolError(f"place-samples: {e}") from None
+    save_npz_atomic(path, **ls.arrays())
+    return SamplesResult(ls, path, False, time.perf_counter() - t0)

@@ -1,0 +1,143 @@
+"""An octree over point samples, as flat arrays (Wang et al. 2016, sec. 3.4-3.5).
+
+Nodes are created parents first; children of a node are contiguous. Per node: the bounding box of its samples'
+boxes (lo, hi), the power-weighted centroid, the power-weighted sum of directions (its length / total weight
+measures how aligned they are), the RGB power sum, the range of its samples in `order`, and its children.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+LEAF_SIZE = 8
+
+
+@dataclass
+class Octree:
+    order: np.ndarray  # (n,) sample indices, leaves' samples contiguous
+    lo: np.ndarray  # (nodes, 3)
+    hi: np.ndarray
+    centre: np.ndarray  # (nodes, 3) power-weighted centroid
+    dirsum: np.ndarray  # (nodes, 3) power-weighted sum of unit directions
+    power: np.ndarray  # (nodes, 3)
+    first_child: np.ndarray  # (nodes,) -1 for leaves
+    n_children: np.ndarray
+    start: np.ndarray  # (nodes,) range in order
+    end: np.ndarray
+
+    def arrays(self):
+        return (self.order, self.lo, self.hi, self.centre, self.dirsum, self.power, self.first_child,
+                self.n_children, self.start, self.end)
+
+
+@njit(cache=True)
+def _build(pts, order, node_start, node_end, first_child, n_children, leaf_size):
+    """Split nodes into octants of their points' bounding box; returns the node count."""
+    cap = node_start.shape[0]
+    n_nodes = 1
+    node_start[0], node_end[0] = 0, pts.shape[0]
+    stack = np.empty(cap, np.int64)
+    sp = 0
+    stack[sp] = 0
+    sp += 1
+    tmp = np.empty(pts.shape[0], np.int64)
+    while sp > 0:
+        sp -= 1
+        nd = stack[sp]
+        a, b = node_start[nd], node_end[nd]
+        first_child[nd] = -1
+        n_children[nd] = 0
+        if b - a <= leaf_size or n_nodes + 8 > cap:
+            continue
+        lo = np.full(3, np.inf)
+        hi = np.full(3, -np.inf)
+        for k in range(a, b):
+            for c in range(3):
+                v = pts[order[k], c]
+                lo[c] = min(lo[c], v)
+                hi[c] = max(hi[c], v)
+        if hi[0] - lo[0] <= 0 and hi[1] - lo[1] <= 0 and hi[2] - lo[2] <= 0:
+            continue  # all at one point: a leaf, however many
+        mid = 0.5 * (lo + hi)
+        counts = np.zeros(8, np.int64)
+        octs = np.empty(b - a, np.int64)
+        for k in range(a, b):
+            o = 0
+            for c in range(3):
+                if pts[order[k], c] > mid[c]:
+                    o |= 1 << c
+            octs[k - a] = o
+            counts[o] += 1
+        offs = np.zeros(9, np.int64)
+        for o in range(8):
+            offs[o + 1] = offs[o] + counts[o]
+        fill = offs[:8].copy()
+        for k in range(a, b):
+            o = octs[k - a]
+            tmp[a + fill[o]] = order[k]
+            fill[o] += 1
+        for k in range(a, b):
+            order[k] = tmp[k]
+        first_child[nd] = n_nodes
+        for o in range(8):
+            if counts[o] == 0:
+                continue
+            node_start[n_nodes], node_end[n_nodes] = a + offs[o], a + offs[o + 1]
+            n_children[nd] += 1
+            stack[sp] = n_nodes
+            sp += 1
+            n_nodes += 1
+    return n_nodes
+
+
+@njit(cache=True)
+def _aggregate(order, start, end, first_child, n_children, n_nodes, pts, box_lo, box_hi, dirs, power,
+               lo, hi, centre, dirsum, pw):
+    for nd in range(n_nodes - 1, -1, -1):  # children were created after their parents
+        for c in range(3):
+            lo[nd, c], hi[nd, c] = np.inf, -np.inf
+            centre[nd, c] = dirsum[nd, c] = pw[nd, c] = 0.0
+        wsum = 0.0
+        if first_child[nd] < 0:
+            for k in range(start[nd], end[nd]):
+                i = order[k]
+                w = power[i, 0] + power[i, 1] + power[i, 2]
+                wsum += w
+                for c in range(3):
+                    lo[nd, c] = min(lo[nd, c], box_lo[i, c])
+                    hi[nd, c] = max(hi[nd, c], box_hi[i, c])
+                    centre[nd, c] += w * pts[i, c]
+                    dirsum[nd, c] += w * dirs[i, c]
+                    pw[nd, c] += power[i, c]
+        else:
+            for ch in range(first_child[nd], first_child[nd] + n_children[nd]):
+                w = pw[ch, 0] + pw[ch, 1] + pw[ch, 2]
+                wsum += w
+                for c in range(3):
+                    lo[nd, c] = min(lo[nd, c], lo[ch, c])
+                    hi[nd, c] = max(hi[nd, c], hi[ch, c])
+                    centre[nd, c] += w * centre[ch, c]
+                    dirsum[nd, c] += dirsum[ch, c]
+                    pw[nd, c] += pw[ch, c]
+        for c in range(3):
+            centre[nd, c] = centre[nd, c] / wsum if wsum > 0 else 0.5 * (lo[nd, c] + hi[nd, c])
+
+
+def build_octree(points, box_lo, box_hi, dirs, power, leaf_size: int = LEAF_SIZE) -> Octree:
+    """Octree over samples at `points` with bounding boxes [box_lo, box_hi], unit directions and RGB power."""
+    n = len(points)
+    cap = 4 * n + 1024  # ample: a node that would overflow it stays a leaf
+    order = np.arange(n, dtype=np.int64)
+    start, end = np.zeros(cap, np.int64), np.zeros(cap, np.int64)
+    fc, nc = np.full(cap, -1, np.int64), np.zeros(cap, np.int64)
+    pts = np.ascontiguousarray(points, np.float64)
+    m = _build(pts, order, start, end, fc, nc, leaf_size) if n else 0
+    lo, hi = np.zeros((m, 3)), np.zeros((m, 3))
+    centre, dirsum, pw = np.zeros((m, 3)), np.zeros((m, 3)), np.zeros((m, 3))
+    if m:
+        _aggregate(order, start, end, fc, nc, m, pts, np.asarray(box_lo, float), np.asarray(box_hi, float),
+                   np.asarray(dirs, float), np.asarray(power, float), lo, hi, centre, dirsum, pw)
+    return Octree(order, lo, hi, centre, dirsum, pw, fc[:m].copy(), nc[:m].copy(), start[:m].copy(), end[:m].copy())

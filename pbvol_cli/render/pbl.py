@@ -1,0 +1,285 @@
+"""Point-based light transport, camera side (Wang et al. 2016, sec. 3.6-3.11, eq. 9).
+
+Camera paths are traced in a wavefront like volpath, but split at smooth interfaces: the reflected and the refracted
+branch are both followed, weighted by Fresnel (F and (1 - F) (eta_i/eta_t)^2), up to a split depth, so the image
+carries no noise from choosing between them. Each segment a path travels inside a medium (length d_max) gets k_max
+points at stratified depths d_k = -log(1 - u_k (1 - exp(-s d_max))) / s (s: the smallest sigma_t of the medium,
+u_k = (k + xi)/k_max), weighted per channel by exp(-sigma_t d_k) / pdf(d_k); the in-scattered radiance at each
+point comes from the light samples (estimators.py). Diffuse surfaces receive direct light (next-event estimation);
+emitters and the environment seen through specular chains add their radiance.
+
+Not yet: indirect light on diffuse surfaces and the bounced component (eq. 7).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+from numba import njit, prange
+
+from pbvol_cli.geometry.raycast import TriangleCaster
+from pbvol_cli.geometry.scene_build import DIELECTRIC, DIFFUSE, MIRROR, NULL, BuiltScene
+from pbvol_cli.physics.fresnel import fresnel_dielectric, reflect, refract
+from pbvol_cli.physics.lights import ENVIRONMENT, emitted_toward, intersect_lights, light_sample
+from pbvol_cli.physics.sampling import rand, seed_state
+from pbvol_cli.pointbased.estimators import double_multiple, single_scattering
+from pbvol_cli.render.camera import generate_camera_rays
+from pbvol_cli.render.intersect import closest_surface_hits
+
+COMPONENTS = ("single", "double", "multiple")
+
+
+@njit(cache=True)
+def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out):
+    """Medium contribution of ray i over [0, tseg[i]] into out[i, component, channel]."""
+    tree, v_start, v_dir, v_len, v_power, v_area, v_centre, v_scat, v_radius, tabs = md
+    sig_a, sig_s = med[0:3], med[3:6]
+    kind, g = int(med[6]), med[7]
+    kmax, tau, rclamp = int(settings[0]), settings[1], settings[2]
+    do_s, do_d, do_m = settings[3] > 0, settings[4] > 0, settings[5] > 0
+    dmax = tseg[i]
+    s = min(sig_a[0] + sig_s[0], min(sig_a[1] + sig_s[1], sig_a[2] + sig_s[2]))
+    frac = -math.expm1(-s * dmax) if s > 0.0 else 1.0
+    o1 = np.zeros(3)
+    o2 = np.zeros(3)
+    o3 = np.zeros(3)
+    wx, wy, wz = -dirs[i, 0], -dirs[i, 1], -dirs[i, 2]
+    xi = rand(rng, i)
+    for k in range(kmax):
+        u = (k + xi) / kmax * frac
+        if s > 0.0:
+            d = -math.log1p(-u) / s
+            pdf = s * math.exp(-s * d) / frac
+        else:
+            d = u * dmax
+            pdf = 1.0 / dmax
+        px, py, pz = pos[i, 0] + d * dirs[i, 0], pos[i, 1] + d * dirs[i, 1], pos[i, 2] + d * dirs[i, 2]
+        o1[:] = 0.0
+        o2[:] = 0.0
+        o3[:] = 0.0
+        if do_s:
+            single_scattering(tree, v_start, v_dir, v_len, v_power, v_area, sig_a, sig_s, kind, g, px, py, pz,
+                              wx, wy, wz, o1)
+        if do_d or do_m:
+            double_multiple(tree, v_centre, v_dir, v_scat, v_radius, sig_a, sig_s, kind, g, px, py, pz, wx, wy, wz,
+                            tau, rclamp, do_d, do_m, tabs, o2, o3)
+        for c in range(3):
+            w = beta[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * d) / (pdf * kmax)
+            out[i, 0, c] += w * o1[c]
+            out[i, 1, c] += w * o2[c]
+            out[i, 2, c] += w * o3[c]
+
+
+@njit(nogil=True, cache=True)
+def _eval_segments(idx, pos, dirs, beta, tseg, rng, med, md, settings, out):
+    for k in range(idx.shape[0]):
+        _segment(idx[k], pos, dirs, beta, tseg, rng, med, md, settings, out)
+
+
+def eval_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, md, settings, out):
+    """Numba's parallel loops reject nested tuples (the octree, the tables): threads over slices instead, the
+    kernel releasing the GIL. Rays are independent, so the result does not depend on the split."""
+    if threads <= 1 or len(idx) < 64:
+        _eval_segments(idx, pos, dirs, beta, tseg, rng, med, md, settings, out)
+        return
+    # interleaved slices balance rays of different cost
+    list(pool.map(lambda j: _eval_segments(idx[j::threads], pos, dirs, beta, tseg, rng, med, md, settings, out),
+                  range(threads)))
+
+
+@njit(parallel=True, cache=True)
+def _light_hits(lights, pos, dirs, tmax, t_out, li_out):
+    for k in prange(pos.shape[0]):
+        t, li = intersect_lights(lights, pos[k, 0], pos[k, 1], pos[k, 2], dirs[k, 0], dirs[k, 1], dirs[k, 2], tmax[k])
+        t_out[k], li_out[k] = t, li
+
+
+@njit(parallel=True, cache=True)
+def _interact(surfaces, media, lights, pos, dirs, beta, medium, depth, rng, t, surf, ng, ns, li, eps, max_depth,
+              seed, emit, child_pos, child_dir, child_beta, child_med, child_ok, sh_pos, sh_dir, sh_dist, sh_C, sh_ok):
+    """Emission, then the surface at t: up to two children per ray (reflected, transmitted), one shadow ray."""
+    nl = lights.shape[0]
+    for i in prange(pos.shape[0]):
+        child_ok[2 * i] = child_ok[2 * i + 1] = False
+        sh_ok[i] = False
+        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        if li[i] >= 0:  # an area light in front of the surface
+            e = emitted_toward(lights, li[i], dx, dy, dz, pos[i, 0], pos[i, 1], pos[i, 2], t[i])
+            for c in range(3):
+                emit[i, c] += beta[i, c] * lights[li[i], 1 + c] * e
+            continue
+        s = surf[i]
+        if s < 0:
+            for k in range(nl):
+                if lights[k, 0] == ENVIRONMENT:
+                    for c in range(3):
+                        emit[i, c] += beta[i, c] * lights[k, 1 + c]
+            continue
+        if depth[i] >= max_depth:
+            continue
+        hx, hy, hz = pos[i, 0] + t[i] * dx, pos[i, 1] + t[i] * dy, pos[i, 2] + t[i] * dz
+        entering = dx * ng[i, 0] + dy * ng[i, 1] + dz * ng[i, 2] < 0.0
+        sg = 1.0 if entering else -1.0
+        gx, gy, gz = sg * ng[i, 0], sg * ng[i, 1], sg * ng[i, 2]
+        nx, ny, nz = sg * ns[i, 0], sg * ns[i, 1], sg * ns[i, 2]
+        if nx * gx + ny * gy + nz * gz <= 0.0:
+            nx, ny, nz = gx, gy, gz
+        stype = surfaces[s, 0]
+        if stype == DIFFUSE:
+            st = np.empty(1, np.uint64)
+            st[0] = rng[i]
+            lk = min(int(rand(st, 0) * nl), nl - 1)
+            wx, wy, wz, dist, Lr, Lg, Lb, pdf, delta = light_sample(lights, lk, hx, hy, hz, rand(st, 0), rand(st, 0))
+            rng[i] = st[0]
+            c = wx * nx + wy * ny + wz * nz
+            if pdf > 0.0 and c > 0.0 and wx * gx + wy * gy + wz * gz > 0.0:
+                f = c / math.pi * nl / pdf
+                sh_C[i, 0] = beta[i, 0] * surfaces[s, 5] * f * Lr
+                sh_C[i, 1] = beta[i, 1] * surfaces[s, 6] * f * Lg
+                sh_C[i, 2] = beta[i, 2] * surfaces[s, 7] * f * Lb
+                sh_pos[i, 0], sh_pos[i, 1], sh_pos[i, 2] = hx + eps * gx, hy + eps * gy, hz + eps * gz
+                sh_dir[i, 0], sh_dir[i, 1], sh_dir[i, 2] = wx, wy, wz
+                sh_dist[i] = dist * (1.0 - 1e-7) - 2.0 * eps if dist < np.inf else np.inf
+                sh_ok[i] = True
+            continue
+        # specular: reflected child (slot 2i) and transmitted child (slot 2i + 1)
+        eta_i = eta_t = 1.0
+        cos_i = cos_t = 1.0
+        if stype == MIRROR:
+            F, kt = 1.0, 0.0
+            rscale = (surfaces[s, 5], surfaces[s, 6], surfaces[s, 7])
+        else:
+            eta_i = surfaces[s, 4] if entering else surfaces[s, 3]
+            eta_t = surfaces[s, 3] if entering else surfaces[s, 4]
+            cos_i = max(-(dx * nx + dy * ny + dz * nz), 1e-9)
+            F, cos_t = fresnel_dielectric(cos_i, eta_t / eta_i) if stype == DIELECTRIC else (0.0, cos_i)
+            kt = (1.0 - F) * (eta_i / eta_t) ** 2
+            rscale = (1.0, 1.0, 1.0)
+        if F > 0.0:
+            j = 2 * i
+            wx, wy, wz = reflect(dx, dy, dz, nx, ny, nz)
+            child_dir[j, 0], child_dir[j, 1], child_dir[j, 2] = wx, wy, wz
+            child_pos[j, 0], child_pos[j, 1], child_pos[j, 2] = hx + eps * gx, hy + eps * gy, hz + eps * gz
+            for c in range(3):
+                child_beta[j, c] = beta[i, c] * F * rscale[c]
+            child_med[j] = medium[i]
+            child_ok[j] = True
+        if kt > 0.0:
+            j = 2 * i + 1
+            if stype == NULL:
+                wx, wy, wz = dx, dy, dz
+            else:
+                wx, wy, wz = refract(dx, dy, dz, nx, ny, nz, eta_t / eta_i, cos_i, cos_t)
+            child_dir[j, 0], child_dir[j, 1], child_dir[j, 2] = wx, wy, wz
+            child_pos[j, 0], child_pos[j, 1], child_pos[j, 2] = hx - eps * gx, hy - eps * gy, hz - eps * gz
+            for c in range(3):
+                child_beta[j, c] = beta[i, c] * kt
+            child_med[j] = int(surfaces[s, 1]) if entering else int(surfaces[s, 2])
+            child_ok[j] = True
+
+
+class MediumData:
+    """A medium's light samples prepared for the kernels: octree, per-sample arrays, its three tables."""
+
+    def __init__(self, samples, medium: int, media_row: np.ndarray, tables: list):
+        from pbvol_cli.pointbased.octree import build_octree
+
+        sel = samples.v_medium == medium
+        self.start = np.ascontiguousarray(samples.v_start[sel])
+        self.dir = np.ascontiguousarray(samples.v_dir[sel])
+        self.len = np.ascontiguousarray(samples.v_len[sel])
+        self.power = np.ascontiguousarray(samples.v_power[sel])
+        self.area = np.ascontiguousarray(samples.v_area[sel])
+        st = media_row[0:3] + media_row[3:6]
+        safe = np.where(st > 0, st, 1.0)
+        absorbed = -np.expm1(-st[None, :] * self.len[:, None])
+        self.scat = self.power * np.where(st > 0, media_row[3:6] / safe, 0.0)[None, :] * absorbed
+        self.centre = self.start + 0.5 * self.len[:, None] * self.dir
+        rb = np.sqrt(self.area / np.pi)
+        self.radius = np.maximum(0.5 * self.len, rb)
+        end = self.start + self.len[:, None] * self.dir
+        box_lo = np.minimum(self.start, end) - rb[:, None]
+        box_hi = np.maximum(self.start, end) + rb[:, None]
+        self.tree = build_octree(self.centre, box_lo, box_hi, self.dir, self.scat)
+        self.tabs = tuple(t.render_args() for t in tables)
+        self.count = int(sel.sum())
+
+    def kernel_tuple(self):
+        return (self.tree.arrays(), self.start, self.dir, self.len, self.power, self.area, self.centre, self.scat,
+                self.radius, self.tabs)
+
+
+def render_pbl(bs: BuiltScene, media_data: dict, spp: int, seed: int, settings: dict, threads: int,
+               progress=None):
+    """Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats)."""
+    W, H = int(bs.camera[12]), int(bs.camera[13])
+    npix = W * H
+    sett = np.array([settings["kmax"], settings["tree_cut"], settings["clamp"],
+                     float("single" in settings["components"]), float("double" in settings["components"]),
+                     float("multiple" in settings["components"])])
+    caster = TriangleCaster(bs.vertices, bs.faces, threads)
+    pool = ThreadPoolExecutor(threads) if threads > 1 else None
+    layers = {name: np.zeros((npix, 3)) for name in (*COMPONENTS, "surface")}
+    t0 = time.perf_counter()
+    total = npix * spp
+    done = 0
+    batch = max(npix, min(total, (1 << 18) // npix * npix)) if npix <= (1 << 18) else npix
+    while done < total:
+        n = min(batch, total - done)
+        pos, dirs = np.zeros((n, 3)), np.zeros((n, 3))
+        pixel = np.zeros(n, np.int64)
+        rng = np.zeros(n, np.uint64)
+        generate_camera_rays(bs.camera, seed, done, n, pos, dirs, pixel, rng)
+        beta = np.ones((n, 3))
+        medium = np.full(n, -1, np.int64)
+        depth = np.zeros(n, np.int64)
+        while len(pos):
+            t, surf, ng, ns = closest_surface_hits(caster, bs, pos, dirs)
+            tl, li = np.empty(len(pos)), np.empty(len(pos), np.int64)
+            _light_hits(bs.lights, pos, dirs, t, tl, li)
+            tev = np.minimum(t, tl)
+            inside = np.flatnonzero((medium >= 0) & np.isfinite(tev))
+            contrib = np.zeros((len(pos), 3, 3))
+            for m in np.unique(medium[inside]):
+                sub = inside[medium[inside] == m]
+                md = media_data.get(int(m))
+                if md is not None and md.count:
+                    eval_segments(pool, threads, sub, pos, dirs, beta, tev, rng, bs.media[m], md.kernel_tuple(), sett,
+                                  contrib)
+                st = bs.media[m, 0:3] + bs.media[m, 3:6]
+                beta[sub] *= np.exp(-st[None, :] * tev[sub, None])
+            for c, name in enumerate(COMPONENTS):
+                for ch in range(3):
+                    layers[name][:, ch] += np.bincount(pixel, weights=contrib[:, c, ch], minlength=npix)
+            k = len(pos)
+            emit = np.zeros((k, 3))
+            cp, cd, cb = np.zeros((2 * k, 3)), np.zeros((2 * k, 3)), np.zeros((2 * k, 3))
+            cm, cok = np.zeros(2 * k, np.int64), np.zeros(2 * k, np.bool_)
+            shp, shd, shdist, shc, shok = np.zeros((k, 3)), np.zeros((k, 3)), np.zeros(k), np.zeros((k, 3)), np.zeros(k, np.bool_)
+            li = np.where(tl < t, li, -1)
+            _interact(bs.surfaces, bs.media, bs.lights, pos, dirs, beta, medium, depth, rng, t, surf, ng, ns, li,
+                      bs.eps, settings["max_split_depth"], seed, emit, cp, cd, cb, cm, cok, shp, shd, shdist, shc, shok)
+            sidx = np.flatnonzero(shok)
+            if len(sidx):
+                ts, _, _, _ = closest_surface_hits(caster, bs, shp[sidx], shd[sidx])
+                vis = sidx[ts >= shdist[sidx]]
+                emit[vis] += shc[vis]
+            for ch in range(3):
+                layers["surface"][:, ch] += np.bincount(pixel, weights=emit[:, ch], minlength=npix)
+            keep = cok & (cb.max(axis=1) > 1e-5)
+            parent = np.repeat(np.arange(k), 2)[keep]
+            pos, dirs, beta, medium = cp[keep], cd[keep], cb[keep], cm[keep]
+            depth, pixel, rng = depth[parent] + 1, pixel[parent], rng[parent] ^ (np.uint64(0x9E37) * (keep.nonzero()[0] % 2 + 1).astype(np.uint64))
+        done += n
+        if progress is not None:
+            progress(done, total)
+    caster.close()
+    if pool is not None:
+        pool.shutdown()
+    spp_done = done // npix
+    out = {name: (v / spp_done).reshape(H, W, 3) for name, v in layers.items()}
+    image = sum(out.values())
+    return image, out, {"time_s": time.perf_counter() - t0, "spp": spp_done}
