@@ -5,7 +5,8 @@ toward the camera. Volume sample v: segment start s_v, direction d_v, length l_v
 cross-section A_v (kernel 1/A_v), scattered power Phi_v^s = Phi_v sigma_s/sigma_t (1 - exp(-sigma_t l_v)).
 - single:   sigma_s p(d_v . w_c) Phi_v exp(-sigma_t t) / A_v, for the beams whose cross-section holds P
             (t = (P - s_v) . d_v in [0, l_v]): the photon-beam estimate the paper's box average approximates.
-- double:   sigma_s p(m . w_c) Phi^s p(d . m) exp(-sigma_t r) / max(r, r_clamp)^2 over a tree cut, m = (P - x)/r.
+- double:   sigma_s p(m . w_c) Phi^s p(d . m) exp(-sigma_t r) <1/r^2> over a tree cut, m = (P - x)/r, where <1/r^2>
+            averages 1/r^2 over a ball of the source's extent (inv_r2_ball) rather than clamping it.
 - multiple: Phi^s sigma_t^3 S_table(sigma_t (P - x), w_c) in the frame of (x, d), over the same cut.
 The cut keeps a node when (solid angle of its box from P) x 4 pi p(m . w_c) < tau and its samples' directions agree
 (|sum of power-weighted directions| >= ALIGNED x total weight: one phase lobe then stands for all of them), and never
@@ -59,6 +60,20 @@ def single_scattering(tree, v_start, v_dir, v_len, v_power, v_area, sig_a, sig_s
                 out[c] += sig_s[c] * ph * v_power[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * t)
 
 
+@njit(inline="always", cache=True)
+def inv_r2_ball(r, c):
+    """Mean of 1/|P - x|^2 over x uniform in a ball of radius c, |P| = r: the 1/r^2 of a source smeared over its
+    extent instead of a hard clamp (3/c^2 at the centre, continuous, -> 1/r^2 far away):
+    3/(2 r c^3) [r c + (c^2 - r^2)/2 ln((c + r)/|c - r|)]."""
+    if c <= 0.0 or r > 4.0 * c:
+        return 1.0 / (r * r) if r > 0.0 else np.inf
+    if r < 1e-6 * c:
+        return 3.0 / (c * c)
+    if abs(r - c) < 1e-9 * c:
+        return 1.5 / (c * c)
+    return 1.5 / (r * c ** 3) * (r * c + 0.5 * (c * c - r * r) * math.log((c + r) / abs(c - r)))
+
+
 @njit(cache=True)
 def _source(x, y, z, dx, dy, dz, Pr, Pg, Pb, px, py, pz, wx, wy, wz, sig_a, sig_s, kind, g, rclamp,
             do_double, do_multiple, tabs, out_d, out_m):
@@ -69,7 +84,7 @@ def _source(x, y, z, dx, dy, dz, Pr, Pg, Pb, px, py, pz, wx, wy, wz, sig_a, sig_
     if do_double and r > 0.0:
         mx, my, mz = rx / r, ry / r, rz / r
         f = phase_eval(kind, g, mx * wx + my * wy + mz * wz) * phase_eval(kind, g, dx * mx + dy * my + dz * mz)
-        f /= max(r2, rclamp * rclamp)
+        f *= inv_r2_ball(r, rclamp)
         out_d[0] += sig_s[0] * Pr * f * math.exp(-(sig_a[0] + sig_s[0]) * r)
         out_d[1] += sig_s[1] * Pg * f * math.exp(-(sig_a[1] + sig_s[1]) * r)
         out_d[2] += sig_s[2] * Pb * f * math.exp(-(sig_a[2] + sig_s[2]) * r)
@@ -79,9 +94,37 @@ def _source(x, y, z, dx, dy, dz, Pr, Pg, Pb, px, py, pz, wx, wy, wz, sig_a, sig_
         out_m[2] += scaled_lookup(tabs[2], Pb, sig_a[2] + sig_s[2], rx, ry, rz, dx, dy, dz, wx, wy, wz)
 
 
+NEAR_SUB = 8  # sub-points along a segment that is close to P
+
+
 @njit(cache=True)
-def double_multiple(tree, v_centre, v_dir, v_scat, v_radius, sig_a, sig_s, kind, g, px, py, pz, wx, wy, wz,
-                    tau, rclamp, do_double, do_multiple, tabs, out_d, out_m):
+def _segment_source(i, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, sig_a, sig_s, kind, g, px, py, pz,
+                    wx, wy, wz, rclamp, do_double, do_multiple, tabs, out_d, out_m):
+    """A volume sample as a source: one point far from P; near P (closer than two segment lengths) NEAR_SUB
+    points along the segment, each with its exact share sigma_s/sigma_t (e^-st t0 - e^-st t1) of the power, so
+    that 1/r^2 needs clamping only at the beam radius."""
+    cx, cy, cz = px - v_centre[i, 0], py - v_centre[i, 1], pz - v_centre[i, 2]
+    ln = v_len[i]
+    if cx * cx + cy * cy + cz * cz > 4.0 * ln * ln:
+        _source(v_centre[i, 0], v_centre[i, 1], v_centre[i, 2], v_dir[i, 0], v_dir[i, 1], v_dir[i, 2],
+                v_scat[i, 0], v_scat[i, 1], v_scat[i, 2], px, py, pz, wx, wy, wz, sig_a, sig_s, kind, g,
+                max(rclamp, max(0.5 * ln, v_rb[i])), do_double, do_multiple, tabs, out_d, out_m)
+        return
+    pw = np.empty(3)
+    for q in range(NEAR_SUB):
+        t0, t1 = ln * q / NEAR_SUB, ln * (q + 1) / NEAR_SUB
+        for c in range(3):
+            st = sig_a[c] + sig_s[c]
+            pw[c] = v_power[i, c] * (sig_s[c] / st * (math.exp(-st * t0) - math.exp(-st * t1)) if st > 0.0 else 0.0)
+        tm = 0.5 * (t0 + t1)
+        _source(v_start[i, 0] + tm * v_dir[i, 0], v_start[i, 1] + tm * v_dir[i, 1], v_start[i, 2] + tm * v_dir[i, 2],
+                v_dir[i, 0], v_dir[i, 1], v_dir[i, 2], pw[0], pw[1], pw[2], px, py, pz, wx, wy, wz, sig_a, sig_s,
+                kind, g, max(rclamp, max(0.5 * (t1 - t0), v_rb[i])), do_double, do_multiple, tabs, out_d, out_m)
+
+
+@njit(cache=True)
+def double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, sig_a, sig_s, kind, g,
+                    px, py, pz, wx, wy, wz, tau, rclamp, do_double, do_multiple, tabs, out_d, out_m):
     order, lo, hi, centre, dirsum, power = tree[0], tree[1], tree[2], tree[3], tree[4], tree[5]
     first_child, n_children, start, end = tree[6], tree[7], tree[8], tree[9]
     stack = np.empty(256, np.int64)
@@ -114,7 +157,5 @@ def double_multiple(tree, v_centre, v_dir, v_scat, v_radius, sig_a, sig_s, kind,
                     sp += 1
             continue
         for k in range(start[nd], end[nd]):
-            i = order[k]
-            _source(v_centre[i, 0], v_centre[i, 1], v_centre[i, 2], v_dir[i, 0], v_dir[i, 1], v_dir[i, 2],
-                    v_scat[i, 0], v_scat[i, 1], v_scat[i, 2], px, py, pz, wx, wy, wz, sig_a, sig_s, kind, g,
-                    max(rclamp, v_radius[i]), do_double, do_multiple, tabs, out_d, out_m)
+            _segment_source(order[k], v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, sig_a, sig_s, kind, g,
+                            px, py, pz, wx, wy, wz, rclamp, do_double, do_multiple, tabs, out_d, out_m)

@@ -35,7 +35,7 @@ COMPONENTS = ("single", "double", "multiple")
 @njit(cache=True)
 def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out):
     """Medium contribution of ray i over [0, tseg[i]] into out[i, component, channel]."""
-    tree, v_start, v_dir, v_len, v_power, v_area, v_centre, v_scat, v_radius, tabs = md
+    tree, v_start, v_dir, v_len, v_power, v_area, v_centre, v_scat, v_rb, tabs = md
     sig_a, sig_s = med[0:3], med[3:6]
     kind, g = int(med[6]), med[7]
     kmax, tau, rclamp = int(settings[0]), settings[1], settings[2]
@@ -64,8 +64,8 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out):
             single_scattering(tree, v_start, v_dir, v_len, v_power, v_area, sig_a, sig_s, kind, g, px, py, pz,
                               wx, wy, wz, o1)
         if do_d or do_m:
-            double_multiple(tree, v_centre, v_dir, v_scat, v_radius, sig_a, sig_s, kind, g, px, py, pz, wx, wy, wz,
-                            tau, rclamp, do_d, do_m, tabs, o2, o3)
+            double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, sig_a, sig_s, kind, g,
+                            px, py, pz, wx, wy, wz, tau, rclamp, do_d, do_m, tabs, o2, o3)
         for c in range(3):
             w = beta[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * d) / (pdf * kmax)
             out[i, 0, c] += w * o1[c]
@@ -199,7 +199,7 @@ class MediumData:
         self.scat = self.power * np.where(st > 0, media_row[3:6] / safe, 0.0)[None, :] * absorbed
         self.centre = self.start + 0.5 * self.len[:, None] * self.dir
         rb = np.sqrt(self.area / np.pi)
-        self.radius = np.maximum(0.5 * self.len, rb)
+        self.rb = rb
         end = self.start + self.len[:, None] * self.dir
         box_lo = np.minimum(self.start, end) - rb[:, None]
         box_hi = np.maximum(self.start, end) + rb[:, None]
@@ -209,7 +209,7 @@ class MediumData:
 
     def kernel_tuple(self):
         return (self.tree.arrays(), self.start, self.dir, self.len, self.power, self.area, self.centre, self.scat,
-                self.radius, self.tabs)
+                self.rb, self.tabs)
 
 
 def render_pbl(bs: BuiltScene, media_data: dict, spp: int, seed: int, settings: dict, threads: int,

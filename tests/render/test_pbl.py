@@ -11,7 +11,7 @@ from pbvol_cli.imageio import read_exr, read_layers
 from pbvol_cli.main import app
 from pbvol_cli.multiple_scattering.table import empty_table
 from pbvol_cli.pipeline.render import RenderOptions, render_scene
-from pbvol_cli.pointbased.estimators import double_multiple
+from pbvol_cli.pointbased.estimators import double_multiple, inv_r2_ball
 from pbvol_cli.pointbased.octree import build_octree
 from pbvol_cli.physics.phase import phase_eval
 from test_volpath import _single_scattering_reference
@@ -54,7 +54,8 @@ def test_double_scattering_tree_cut_against_the_exhaustive_sum(spread):
     d = np.array([0.3, -0.2, 0.9]) + spread * rng.normal(size=(n, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     scat = rng.random((n, 3))
-    radius = np.full(n, 0.01)
+    # segments of length 0 (points), so the formula below is exact for them
+    length, start, rb = np.zeros(n), centre.copy(), np.full(n, 0.01)
     tree = build_octree(centre, centre - 0.01, centre + 0.01, d, scat).arrays()
     tabs = (empty_table().render_args(),) * 3
     P = np.array([1.5, 0.2, -0.3])
@@ -64,16 +65,27 @@ def test_double_scattering_tree_cut_against_the_exhaustive_sum(spread):
         r = P - centre[i]
         dist = np.linalg.norm(r)
         m = r / dist
-        f = phase_eval(1, G, m @ w) * phase_eval(1, G, d[i] @ m) / max(dist, 0.02) ** 2
+        f = phase_eval(1, G, m @ w) * phase_eval(1, G, d[i] @ m) * inv_r2_ball(dist, 0.02)
         exact += SIG_S * scat[i] * f * np.exp(-(SIG_S + SIG_A) * dist)
     out_d, out_m = np.zeros(3), np.zeros(3)
-    double_multiple(tree, centre, d, scat, radius, SIG_A, SIG_S, 1, G, *P, *w, 1e-12, 0.02, True, False, tabs,
-                    out_d, out_m)
+    double_multiple(tree, start, d, length, scat, centre, scat, rb, SIG_A, SIG_S, 1, G, *P, *w, 1e-12, 0.02, True,
+                    False, tabs, out_d, out_m)
     assert out_d == pytest.approx(exact, rel=1e-9)
     cut_d = np.zeros(3)
-    double_multiple(tree, centre, d, scat, radius, SIG_A, SIG_S, 1, G, *P, *w, 0.2, 0.02, True, False, tabs,
-                    cut_d, out_m)
+    double_multiple(tree, start, d, length, scat, centre, scat, rb, SIG_A, SIG_S, 1, G, *P, *w, 0.2, 0.02, True,
+                    False, tabs, cut_d, out_m)
     assert cut_d == pytest.approx(exact, rel=0.01)
+
+
+def test_smoothed_inverse_square_is_the_ball_average():
+    """inv_r2_ball against a Monte Carlo average of 1/|P - x|^2 over a ball, inside, at and outside its surface."""
+    rng = np.random.default_rng(6)
+    x = rng.normal(size=(400000, 3))
+    x *= (rng.random(400000) ** (1 / 3) / np.linalg.norm(x, axis=1))[:, None]  # uniform in the unit ball
+    for r in (0.0, 0.3, 0.9, 1.5, 3.0):
+        mc = np.mean(1.0 / np.sum((x - [r, 0, 0]) ** 2, axis=1))
+        assert inv_r2_ball(r, 1.0) == pytest.approx(mc, rel=0.03 if r < 1.1 else 0.01)
+    assert inv_r2_ball(10.0, 1.0) == pytest.approx(0.01, rel=1e-12)
 
 
 runner = CliRunner()
