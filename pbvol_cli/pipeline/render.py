@@ -189,7 +189,7 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
     stages["tables_s"] = time.perf_counter() - t0
     W, H = int(built.camera[12]), int(built.camera[13])
     prog, update = _progress(opts.quiet, f"pbl {W}x{H} {spp} spp")
-    settings = {"kmax": pbl.kmax, "tree_cut": pbl.tree_cut, "clamp": pbl.clamp, "components": comps,
+    settings = {"kmax": pbl.kmax, "kmax_scattered": pbl.kmax_scattered, "tree_cut": pbl.tree_cut, "clamp": pbl.clamp, "components": comps,
                 "max_split_depth": pbl.max_split_depth}
     with prog:
         img, layers, stats = render_pbl(built, media_data, spp, seed, settings, threads, update)

@@ -38,39 +38,44 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out):
     tree, v_start, v_dir, v_len, v_power, v_area, v_centre, v_scat, v_rb, tabs = md
     sig_a, sig_s = med[0:3], med[3:6]
     kind, g = int(med[6]), med[7]
-    kmax, tau, rclamp = int(settings[0]), settings[1], settings[2]
+    kmax, tau, rclamp, k2 = int(settings[0]), settings[1], settings[2], int(settings[6])
     do_s, do_d, do_m = settings[3] > 0, settings[4] > 0, settings[5] > 0
     dmax = tseg[i]
     s = min(sig_a[0] + sig_s[0], min(sig_a[1] + sig_s[1], sig_a[2] + sig_s[2]))
     frac = -math.expm1(-s * dmax) if s > 0.0 else 1.0
-    o1 = np.zeros(3)
-    o2 = np.zeros(3)
+    o = np.zeros(3)
     o3 = np.zeros(3)
     wx, wy, wz = -dirs[i, 0], -dirs[i, 1], -dirs[i, 2]
     xi = rand(rng, i)
-    for k in range(kmax):
-        u = (k + xi) / kmax * frac
-        if s > 0.0:
-            d = -math.log1p(-u) / s
-            pdf = s * math.exp(-s * d) / frac
-        else:
-            d = u * dmax
-            pdf = 1.0 / dmax
-        px, py, pz = pos[i, 0] + d * dirs[i, 0], pos[i, 1] + d * dirs[i, 1], pos[i, 2] + d * dirs[i, 2]
-        o1[:] = 0.0
-        o2[:] = 0.0
-        o3[:] = 0.0
-        if do_s:
-            single_scattering(tree, v_start, v_dir, v_len, v_power, v_area, sig_a, sig_s, kind, g, px, py, pz,
-                              wx, wy, wz, o1)
-        if do_d or do_m:
-            double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, sig_a, sig_s, kind, g,
-                            px, py, pz, wx, wy, wz, tau, rclamp, do_d, do_m, tabs, o2, o3)
-        for c in range(3):
-            w = beta[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * d) / (pdf * kmax)
-            out[i, 0, c] += w * o1[c]
-            out[i, 1, c] += w * o2[c]
-            out[i, 2, c] += w * o3[c]
+    # single scattering at kmax points; double and multiple (smooth along the ray) at their own k2 points
+    for comp in range(2):
+        n = kmax if comp == 0 else k2
+        if (comp == 0 and not do_s) or (comp == 1 and not (do_d or do_m)):
+            continue
+        for k in range(n):
+            u = (k + xi) / n * frac
+            if s > 0.0:
+                d = -math.log1p(-u) / s
+                pdf = s * math.exp(-s * d) / frac
+            else:
+                d = u * dmax
+                pdf = 1.0 / dmax
+            px, py, pz = pos[i, 0] + d * dirs[i, 0], pos[i, 1] + d * dirs[i, 1], pos[i, 2] + d * dirs[i, 2]
+            o[:] = 0.0
+            o3[:] = 0.0
+            if comp == 0:
+                single_scattering(tree, v_start, v_dir, v_len, v_power, v_area, sig_a, sig_s, kind, g, px, py, pz,
+                                  wx, wy, wz, o)
+            else:
+                double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, sig_a, sig_s, kind, g,
+                                px, py, pz, wx, wy, wz, tau, rclamp, do_d, do_m, tabs, o, o3)
+            for c in range(3):
+                w = beta[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * d) / (pdf * n)
+                if comp == 0:
+                    out[i, 0, c] += w * o[c]
+                else:
+                    out[i, 1, c] += w * o[c]
+                    out[i, 2, c] += w * o3[c]
 
 
 @njit(nogil=True, cache=True)
@@ -219,7 +224,7 @@ def render_pbl(bs: BuiltScene, media_data: dict, spp: int, seed: int, settings: 
     npix = W * H
     sett = np.array([settings["kmax"], settings["tree_cut"], settings["clamp"],
                      float("single" in settings["components"]), float("double" in settings["components"]),
-                     float("multiple" in settings["components"])])
+                     float("multiple" in settings["components"]), settings["kmax_scattered"]])
     caster = TriangleCaster(bs.vertices, bs.faces, threads)
     pool = ThreadPoolExecutor(threads) if threads > 1 else None
     layers = {name: np.zeros((npix, 3)) for name in (*COMPONENTS, "surface")}
