@@ -289,12 +289,17 @@ def resolve_particles(alpha: float, g: float, phase_kind: int, settings: TableSe
     return replace(settings, particles=n)
 
 
-def build_table(alpha: float, g: float, phase_kind: int, settings: TableSettings, progress=None):
-    """Simulate and compress. Returns (MSTable, dense S (n_rho, n_z, n_dirs) float64)."""
+def build_table(alpha: float, g: float, phase_kind: int, settings: TableSettings, progress=None,
+                first_collision: bool = False):
+    """Simulate and compress. Returns (MSTable, dense S (n_rho, n_z, n_dirs) float64).
+
+    first_collision=True scores only the particle's first collision: the double-scattering kernel, used to check
+    the table's conventions against the closed form."""
     settings = resolve_particles(alpha, g, phase_kind, settings)
     lay = settings.layout
     t0 = time.perf_counter()
-    H, total, collisions = simulate(alpha, phase_kind, g, lay, settings.particles, settings.seed, progress=progress)
+    H, total, collisions = simulate(alpha, phase_kind, g, lay, settings.particles, settings.seed, progress=progress,
+                                    first_only=first_collision)
     t_sim = time.perf_counter() - t0
     P = lobes.phase_bin_matrix(phase_kind, g, lay)
     S = lobes.dense_table(H, P, lay)
