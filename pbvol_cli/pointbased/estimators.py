@@ -8,9 +8,11 @@ cross-section A_v (kernel 1/A_v), scattered power Phi_v^s = Phi_v sigma_s/sigma_
 - double:   sigma_s p(m . w_c) Phi^s p(d . m) exp(-sigma_t r) <1/r^2> over a tree cut, m = (P - x)/r, where <1/r^2>
             averages 1/r^2 over a ball of the source's extent (inv_r2_ball) rather than clamping it.
 - multiple: Phi^s sigma_t^3 S_table(sigma_t (P - x), w_c) in the frame of (x, d), over the same cut.
-The cut keeps a node when (solid angle of its box from P) x 4 pi p(m . w_c) < tau and its samples' directions agree
-(|sum of power-weighted directions| >= ALIGNED x total weight: one phase lobe then stands for all of them), and never
-a node whose box holds P.
+The cut keeps a node when (solid angle of its box from P) x 4 pi p(m . w_c) < tau, and never a node whose box holds P.
+A kept node's samples may point different ways (beams from an environment, internal reflections): with alignment
+a = |sum of power-weighted directions| / total weight, their phase lobes are replaced by a p(d_mean . m) + (1 - a)/(4 pi),
+normalised and with the mixture's first moment a g (exact when the beams are parallel); the table look-up for
+multiple scattering uses the mean direction.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from numba import njit
 from pbvol_cli.multiple_scattering.table import scaled_lookup
 from pbvol_cli.physics.phase import phase_eval
 
-ALIGNED = 0.95
+INV_4PI = 1.0 / (4.0 * math.pi)
 
 
 @njit(cache=True)
@@ -76,15 +78,16 @@ def inv_r2_ball(r, c):
 
 @njit(cache=True)
 def _source(x, y, z, dx, dy, dz, Pr, Pg, Pb, px, py, pz, wx, wy, wz, sig_a, sig_s, kind, g, rclamp,
-            do_double, do_multiple, tabs, out_d, out_m):
-    """Double and multiple scattering at P from a point source of scattered power (Pr, Pg, Pb) along d."""
+            do_double, do_multiple, tabs, out_d, out_m, align=1.0):
+    """Double and multiple scattering at P from a point source of scattered power (Pr, Pg, Pb) along d (mean
+    direction of a node with alignment `align`: its lobe is blended toward isotropic, see the module doc)."""
     rx, ry, rz = px - x, py - y, pz - z
     r2 = rx * rx + ry * ry + rz * rz
     r = math.sqrt(r2)
     if do_double and r > 0.0:
         mx, my, mz = rx / r, ry / r, rz / r
-        f = phase_eval(kind, g, mx * wx + my * wy + mz * wz) * phase_eval(kind, g, dx * mx + dy * my + dz * mz)
-        f *= inv_r2_ball(r, rclamp)
+        lobe = align * phase_eval(kind, g, dx * mx + dy * my + dz * mz) + (1.0 - align) * INV_4PI
+        f = phase_eval(kind, g, mx * wx + my * wy + mz * wz) * lobe * inv_r2_ball(r, rclamp)
         out_d[0] += sig_s[0] * Pr * f * math.exp(-(sig_a[0] + sig_s[0]) * r)
         out_d[1] += sig_s[1] * Pg * f * math.exp(-(sig_a[1] + sig_s[1]) * r)
         out_d[2] += sig_s[2] * Pb * f * math.exp(-(sig_a[2] + sig_s[2]) * r)
@@ -142,13 +145,14 @@ def double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb
             h2 = 0.25 * (hx * hx + hy * hy + hz * hz)
             d = math.sqrt(d2)
             crit = math.pi * h2 / d2 * 4.0 * math.pi * phase_eval(kind, g, (cx * wx + cy * wy + cz * wz) / d)
-            sx, sy, sz = dirsum[nd, 0], dirsum[nd, 1], dirsum[nd, 2]
-            sn = math.sqrt(sx * sx + sy * sy + sz * sz)
-            if crit < tau and sn >= ALIGNED * (power[nd, 0] + power[nd, 1] + power[nd, 2]):
-                if sn > 0.0:
+            if crit < tau:
+                sx, sy, sz = dirsum[nd, 0], dirsum[nd, 1], dirsum[nd, 2]
+                sn = math.sqrt(sx * sx + sy * sy + sz * sz)
+                wsum = power[nd, 0] + power[nd, 1] + power[nd, 2]
+                if sn > 0.0 and wsum > 0.0:
                     _source(centre[nd, 0], centre[nd, 1], centre[nd, 2], sx / sn, sy / sn, sz / sn, power[nd, 0],
                             power[nd, 1], power[nd, 2], px, py, pz, wx, wy, wz, sig_a, sig_s, kind, g,
-                            max(rclamp, math.sqrt(h2)), do_double, do_multiple, tabs, out_d, out_m)
+                            max(rclamp, math.sqrt(h2)), do_double, do_multiple, tabs, out_d, out_m, min(1.0, sn / wsum))
                 continue
         if not leaf:
             for ch in range(first_child[nd], first_child[nd] + n_children[nd]):
