@@ -86,6 +86,22 @@ def _connect(lights, li, pos, nrm, eps, seed, wdir, dist, E, ok):
             E[k, 0], E[k, 1], E[k, 2] = Lr * c / pdf, Lg * c / pdf, Lb * c / pdf
 
 
+@njit(inline="always", cache=True)
+def _interface(surfaces, s, d, ng, ns, k):
+    """A beam k meeting surface s: (entering, shading and geometric normals on the incident side, eta_i, eta_t,
+    cos_i, Fresnel F, cos_t)."""
+    dx, dy, dz = d[k, 0], d[k, 1], d[k, 2]
+    entering = dx * ng[k, 0] + dy * ng[k, 1] + dz * ng[k, 2] < 0.0
+    sg = 1.0 if entering else -1.0
+    nx, ny, nz = sg * ns[k, 0], sg * ns[k, 1], sg * ns[k, 2]
+    gx, gy, gz = sg * ng[k, 0], sg * ng[k, 1], sg * ng[k, 2]
+    eta_i = surfaces[s, 4] if entering else surfaces[s, 3]
+    eta_t = surfaces[s, 3] if entering else surfaces[s, 4]
+    cos_i = max(-(dx * nx + dy * ny + dz * nz), 1e-9)
+    F, cos_t = fresnel_dielectric(cos_i, eta_t / eta_i)
+    return entering, nx, ny, nz, gx, gy, gz, eta_i, eta_t, cos_i, F, cos_t
+
+
 @njit(parallel=True, cache=True)
 def _cross(surfaces, pos, d, power, medium, cosx, ng, ns, t, surf, eps, alive):
     """Move each beam to its hit and transmit it through the interface (Fresnel T); kill on anything else."""
@@ -97,14 +113,7 @@ def _cross(surfaces, pos, d, power, medium, cosx, ng, ns, t, surf, eps, alive):
             alive[k] = False
             continue
         dx, dy, dz = d[k, 0], d[k, 1], d[k, 2]
-        entering = dx * ng[k, 0] + dy * ng[k, 1] + dz * ng[k, 2] < 0.0
-        sg = 1.0 if entering else -1.0
-        nx, ny, nz = sg * ns[k, 0], sg * ns[k, 1], sg * ns[k, 2]
-        gx, gy, gz = sg * ng[k, 0], sg * ng[k, 1], sg * ng[k, 2]
-        eta_i = surfaces[s, 4] if entering else surfaces[s, 3]
-        eta_t = surfaces[s, 3] if entering else surfaces[s, 4]
-        cos_i = max(-(dx * nx + dy * ny + dz * nz), 1e-9)
-        F, cos_t = fresnel_dielectric(cos_i, eta_t / eta_i)
+        entering, nx, ny, nz, gx, gy, gz, eta_i, eta_t, cos_i, F, cos_t = _interface(surfaces, s, d, ng, ns, k)
         if F >= 1.0:
             alive[k] = False
             continue
@@ -156,14 +165,7 @@ def _segments(media, surfaces, pos, d, power, medium, area, t, surf, ng, ns, eps
             alive[k] = False
             continue
         dx, dy, dz = d[k, 0], d[k, 1], d[k, 2]
-        entering = dx * ng[k, 0] + dy * ng[k, 1] + dz * ng[k, 2] < 0.0
-        sg = 1.0 if entering else -1.0
-        nx, ny, nz = sg * ns[k, 0], sg * ns[k, 1], sg * ns[k, 2]
-        gx, gy, gz = sg * ng[k, 0], sg * ng[k, 1], sg * ng[k, 2]
-        eta_i = surfaces[s, 4] if entering else surfaces[s, 3]
-        eta_t = surfaces[s, 3] if entering else surfaces[s, 4]
-        cos_i = max(-(dx * nx + dy * ny + dz * nz), 1e-9)
-        F, _ = fresnel_dielectric(cos_i, eta_t / eta_i)
+        entering, nx, ny, nz, gx, gy, gz, eta_i, eta_t, cos_i, F, _ = _interface(surfaces, s, d, ng, ns, k)
         pmax = 0.0
         for c in range(3):
             power[k, c] *= math.exp(-(media[m, c] + media[m, 3 + c]) * tex) * F
