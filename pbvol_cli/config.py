@@ -250,9 +250,14 @@ class PblSettings(Strict):
     max_layers: int = Field(8, ge=1, description="transparent interfaces a beam may cross to reach the medium")
     kmax: int = Field(16, ge=1, description="points per camera-ray segment in a medium for single scattering (eq. 9)")
     kmax_scattered: int = Field(4, ge=1, description="points per segment for double and multiple (smooth along rays)")
-    tree_cut: float = Field(1.0, gt=0, description="solid angle x 4 pi phase below which a node is used whole")
+    cut_size: int = Field(32, ge=0, description="octree refinements per point for double and multiple scattering "
+                          "(stochastic light cut: more = less noise, more time)")
     clamp: float = Field(0.02, ge=0, description="minimum distance in the 1/r^2 of double scattering, scene units")
     max_split_depth: int = Field(8, ge=1, description="specular interfaces a camera path may split at")
+    light_sets: int = Field(0, ge=0, description="independent light-sample sets the spp passes cycle through "
+                            "(0: a new set every pass; 1: the cached set only)")
+    roulette: float = Field(0.1, ge=0, description="camera branches of weight below this evaluate the medium "
+                            "with probability weight / roulette (0: always)")
     components: tuple[Literal["single", "double", "multiple"], ...] = ("single", "double", "multiple")
 
 

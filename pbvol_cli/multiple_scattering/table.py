@@ -208,7 +208,7 @@ def _lookup_many(params, intensity, leaf, leaf_kind, leaf_slot, coef, qlobe, qma
                            cos_t[k], phi[k], basis)
 
 
-@njit(cache=True)
+@njit(inline="always", cache=True)
 def grid_lookup(params, intensity, leaf, globe, rho, z, cos_t, phi):
     """ms_lookup on the expanded form (MSTable.render_args): bilinear in cells and in direction bins."""
     R = params[0]
@@ -236,7 +236,7 @@ def grid_lookup(params, intensity, leaf, globe, rho, z, cos_t, phi):
     return total
 
 
-@njit(cache=True)
+@njit(inline="always", cache=True)
 def scaled_lookup(tab, power, sigma_t, rx, ry, rz, ax, ay, az, wx, wy, wz):
     """In-scattered radiance per unit length at offset r from a source of `power` emitting along the unit axis a,
     toward propagation direction w, in a medium of extinction sigma_t: S_real = power sigma_t^3 S(sigma_t r, w).

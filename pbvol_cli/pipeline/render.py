@@ -168,7 +168,7 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
     stages["samples_s"] = time.perf_counter() - t0
     stages["samples_reused"] = float(res.reused)
     t0 = time.perf_counter()
-    media_data = {}
+    media_tables = {}
     for m, info in enumerate(built.medium_info):
         kind = KINDS[info.material.phase]
         st = built.media[m, 0:3] + built.media[m, 3:6]
@@ -185,15 +185,33 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
             from pbvol_cli.multiple_scattering.table import empty_table
 
             filler = empty_table()
-        media_data[m] = MediumData(res.samples, m, built.media[m], [t or filler for t in tables])
+        media_tables[m] = [t or filler for t in tables]
     stages["tables_s"] = time.perf_counter() - t0
+    passes_samples_s = [0.0]
+
+    def media_for_pass(p: int) -> dict:
+        """Pass p's light samples: the cached set for pass 0, a fresh set (seed + p, not cached) for the others,
+        so that the light side's sampling noise (single beams visible as streaks) averages out over passes."""
+        samples = res.samples
+        if p > 0 and pbl.light_sets != 1 and (pbl.light_sets == 0 or p < pbl.light_sets):
+            from pbvol_cli.pointbased.light_samples import place_light_samples
+
+            t = time.perf_counter()
+            samples = place_light_samples(built, pbl.surface_samples, pbl.segments_per_beam,
+                                          pbl.max_internal_reflections, pbl.max_layers, seed + p, threads)
+            passes_samples_s[0] += time.perf_counter() - t
+        elif p > 0 and pbl.light_sets > 1:
+            return media_for_pass(p % pbl.light_sets)
+        return {m: MediumData(samples, m, built.media[m], media_tables[m]) for m in media_tables}
+
     W, H = int(built.camera[12]), int(built.camera[13])
     prog, update = _progress(opts.quiet, f"pbl {W}x{H} {spp} spp")
-    settings = {"kmax": pbl.kmax, "kmax_scattered": pbl.kmax_scattered, "tree_cut": pbl.tree_cut, "clamp": pbl.clamp, "components": comps,
-                "max_split_depth": pbl.max_split_depth}
+    settings = {"kmax": pbl.kmax, "kmax_scattered": pbl.kmax_scattered, "cut_size": pbl.cut_size, "clamp": pbl.clamp,
+                "components": comps, "max_split_depth": pbl.max_split_depth, "roulette": pbl.roulette}
     with prog:
-        img, layers, stats = render_pbl(built, media_data, spp, seed, settings, threads, update)
+        img, layers, stats = render_pbl(built, media_for_pass, spp, seed, settings, threads, update)
     stages["render_s"] = stats["time_s"]
+    stages["pass_samples_s"] = passes_samples_s[0]
     stages["peak_memory_mb"] = peak_memory_mb()
     return img, layers, stats, stages
 

@@ -24,7 +24,7 @@ from pbvol_cli.geometry.raycast import TriangleCaster
 from pbvol_cli.geometry.scene_build import DIELECTRIC, DIFFUSE, MIRROR, NULL, BuiltScene
 from pbvol_cli.physics.fresnel import fresnel_dielectric, reflect, refract
 from pbvol_cli.physics.lights import ENVIRONMENT, emitted_toward, intersect_lights, light_sample
-from pbvol_cli.physics.sampling import rand, seed_state
+from pbvol_cli.physics.sampling import cosine_hemisphere, rand, seed_state
 from pbvol_cli.pointbased.estimators import double_multiple, single_scattering
 from pbvol_cli.render.camera import generate_camera_rays
 from pbvol_cli.render.intersect import closest_surface_hits
@@ -38,7 +38,7 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out):
     tree, v_start, v_dir, v_len, v_power, v_area, v_centre, v_scat, v_rb, tabs = md
     sig_a, sig_s = med[0:3], med[3:6]
     kind, g = int(med[6]), med[7]
-    kmax, tau, rclamp, k2 = int(settings[0]), settings[1], settings[2], int(settings[6])
+    kmax, cut_size, rclamp, k2 = int(settings[0]), int(settings[1]), settings[2], int(settings[6])
     do_s, do_d, do_m = settings[3] > 0, settings[4] > 0, settings[5] > 0
     dmax = tseg[i]
     s = min(sig_a[0] + sig_s[0], min(sig_a[1] + sig_s[1], sig_a[2] + sig_s[2]))
@@ -68,7 +68,7 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out):
                                   wx, wy, wz, o)
             else:
                 double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, sig_a, sig_s, kind, g,
-                                px, py, pz, wx, wy, wz, tau, rclamp, do_d, do_m, tabs, o, o3)
+                                px, py, pz, wx, wy, wz, cut_size, rclamp, do_d, do_m, tabs, o, o3, rng, i)
             for c in range(3):
                 w = beta[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * d) / (pdf * n)
                 if comp == 0:
@@ -102,14 +102,22 @@ def _light_hits(lights, pos, dirs, tmax, t_out, li_out):
         t_out[k], li_out[k] = t, li
 
 
+@njit(cache=True)
+def _cosine_direction(u1, u2, nx, ny, nz):
+    """cosine_hemisphere behind a call: inlined into _interact's parallel loop it trips numba's array analysis."""
+    return cosine_hemisphere(u1, u2, nx, ny, nz)
+
+
 @njit(parallel=True, cache=True)
 def _interact(surfaces, media, lights, pos, dirs, beta, medium, depth, rng, t, surf, ng, ns, li, eps, max_depth,
               seed, emit, child_pos, child_dir, child_beta, child_med, child_ok, sh_pos, sh_dir, sh_dist, sh_C, sh_ok):
-    """Emission, then the surface at t: up to two children per ray (reflected, transmitted), one shadow ray."""
+    """Emission, then the surface at t: up to two children per ray (reflected, transmitted); at a diffuse surface,
+    one shadow ray per light (slots i * n_lights + light)."""
     nl = lights.shape[0]
     for i in prange(pos.shape[0]):
         child_ok[2 * i] = child_ok[2 * i + 1] = False
-        sh_ok[i] = False
+        for lk in range(nl):
+            sh_ok[i * nl + lk] = False
         dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
         if li[i] >= 0:  # an area light in front of the surface
             e = emitted_toward(lights, li[i], dx, dy, dz, pos[i, 0], pos[i, 1], pos[i, 2], t[i])
@@ -134,21 +142,33 @@ def _interact(surfaces, media, lights, pos, dirs, beta, medium, depth, rng, t, s
             nx, ny, nz = gx, gy, gz
         stype = surfaces[s, 0]
         if stype == DIFFUSE:
+            # direct light from every light, one sample each (the environment by cosine-weighted directions)
             st = np.empty(1, np.uint64)
             st[0] = rng[i]
-            lk = min(int(rand(st, 0) * nl), nl - 1)
-            wx, wy, wz, dist, Lr, Lg, Lb, pdf, delta = light_sample(lights, lk, hx, hy, hz, rand(st, 0), rand(st, 0))
+            for lk in range(nl):
+                j = i * nl + lk
+                sh_ok[j] = False
+                u1, u2 = rand(st, 0), rand(st, 0)
+                if lights[lk, 0] == ENVIRONMENT:
+                    wx, wy, wz = _cosine_direction(u1, u2, nx, ny, nz)
+                    dist, Lr, Lg, Lb = np.inf, lights[lk, 1], lights[lk, 2], lights[lk, 3]
+                    c = wx * nx + wy * ny + wz * nz
+                    f = 1.0  # (c / pi) / pdf, pdf = c / pi
+                    ok = c > 0.0
+                else:
+                    wx, wy, wz, dist, Lr, Lg, Lb, pdf, delta = light_sample(lights, lk, hx, hy, hz, u1, u2)
+                    c = wx * nx + wy * ny + wz * nz
+                    ok = pdf > 0.0 and c > 0.0
+                    f = c / math.pi / pdf if ok else 0.0
+                if ok and wx * gx + wy * gy + wz * gz > 0.0:
+                    sh_C[j, 0] = beta[i, 0] * surfaces[s, 5] * f * Lr
+                    sh_C[j, 1] = beta[i, 1] * surfaces[s, 6] * f * Lg
+                    sh_C[j, 2] = beta[i, 2] * surfaces[s, 7] * f * Lb
+                    sh_pos[j, 0], sh_pos[j, 1], sh_pos[j, 2] = hx + eps * gx, hy + eps * gy, hz + eps * gz
+                    sh_dir[j, 0], sh_dir[j, 1], sh_dir[j, 2] = wx, wy, wz
+                    sh_dist[j] = dist * (1.0 - 1e-7) - 2.0 * eps if dist < np.inf else np.inf
+                    sh_ok[j] = True
             rng[i] = st[0]
-            c = wx * nx + wy * ny + wz * nz
-            if pdf > 0.0 and c > 0.0 and wx * gx + wy * gy + wz * gz > 0.0:
-                f = c / math.pi * nl / pdf
-                sh_C[i, 0] = beta[i, 0] * surfaces[s, 5] * f * Lr
-                sh_C[i, 1] = beta[i, 1] * surfaces[s, 6] * f * Lg
-                sh_C[i, 2] = beta[i, 2] * surfaces[s, 7] * f * Lb
-                sh_pos[i, 0], sh_pos[i, 1], sh_pos[i, 2] = hx + eps * gx, hy + eps * gy, hz + eps * gz
-                sh_dir[i, 0], sh_dir[i, 1], sh_dir[i, 2] = wx, wy, wz
-                sh_dist[i] = dist * (1.0 - 1e-7) - 2.0 * eps if dist < np.inf else np.inf
-                sh_ok[i] = True
             continue
         # specular: reflected child (slot 2i) and transmitted child (slot 2i + 1)
         eta_i = eta_t = 1.0
@@ -217,12 +237,13 @@ class MediumData:
                 self.rb, self.tabs)
 
 
-def render_pbl(bs: BuiltScene, media_data: dict, spp: int, seed: int, settings: dict, threads: int,
+def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, settings: dict, threads: int,
                progress=None):
-    """Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats)."""
+    """Renders spp passes of one camera path per pixel; pass p uses the light samples media_for_pass(p)
+    ({medium: MediumData}). Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats)."""
     W, H = int(bs.camera[12]), int(bs.camera[13])
     npix = W * H
-    sett = np.array([settings["kmax"], settings["tree_cut"], settings["clamp"],
+    sett = np.array([settings["kmax"], settings["cut_size"], settings["clamp"],
                      float("single" in settings["components"]), float("double" in settings["components"]),
                      float("multiple" in settings["components"]), settings["kmax_scattered"]])
     caster = TriangleCaster(bs.vertices, bs.faces, threads)
@@ -230,61 +251,76 @@ def render_pbl(bs: BuiltScene, media_data: dict, spp: int, seed: int, settings: 
     layers = {name: np.zeros((npix, 3)) for name in (*COMPONENTS, "surface")}
     t0 = time.perf_counter()
     total = npix * spp
-    done = 0
-    batch = max(npix, min(total, (1 << 18) // npix * npix)) if npix <= (1 << 18) else npix
-    while done < total:
-        n = min(batch, total - done)
-        pos, dirs = np.zeros((n, 3)), np.zeros((n, 3))
-        pixel = np.zeros(n, np.int64)
-        rng = np.zeros(n, np.uint64)
-        generate_camera_rays(bs.camera, seed, done, n, pos, dirs, pixel, rng)
-        beta = np.ones((n, 3))
-        medium = np.full(n, -1, np.int64)
-        depth = np.zeros(n, np.int64)
-        while len(pos):
-            t, surf, ng, ns = closest_surface_hits(caster, bs, pos, dirs)
-            tl, li = np.empty(len(pos)), np.empty(len(pos), np.int64)
-            _light_hits(bs.lights, pos, dirs, t, tl, li)
-            tev = np.minimum(t, tl)
-            inside = np.flatnonzero((medium >= 0) & np.isfinite(tev))
-            contrib = np.zeros((len(pos), 3, 3))
-            for m in np.unique(medium[inside]):
-                sub = inside[medium[inside] == m]
-                md = media_data.get(int(m))
-                if md is not None and md.count:
-                    eval_segments(pool, threads, sub, pos, dirs, beta, tev, rng, bs.media[m], md.kernel_tuple(), sett,
-                                  contrib)
-                st = bs.media[m, 0:3] + bs.media[m, 3:6]
-                beta[sub] *= np.exp(-st[None, :] * tev[sub, None])
-            for c, name in enumerate(COMPONENTS):
-                for ch in range(3):
-                    layers[name][:, ch] += np.bincount(pixel, weights=contrib[:, c, ch], minlength=npix)
-            k = len(pos)
-            emit = np.zeros((k, 3))
-            cp, cd, cb = np.zeros((2 * k, 3)), np.zeros((2 * k, 3)), np.zeros((2 * k, 3))
-            cm, cok = np.zeros(2 * k, np.int64), np.zeros(2 * k, np.bool_)
-            shp, shd, shdist, shc, shok = np.zeros((k, 3)), np.zeros((k, 3)), np.zeros(k), np.zeros((k, 3)), np.zeros(k, np.bool_)
-            li = np.where(tl < t, li, -1)
-            _interact(bs.surfaces, bs.media, bs.lights, pos, dirs, beta, medium, depth, rng, t, surf, ng, ns, li,
-                      bs.eps, settings["max_split_depth"], seed, emit, cp, cd, cb, cm, cok, shp, shd, shdist, shc, shok)
-            sidx = np.flatnonzero(shok)
-            if len(sidx):
-                ts, _, _, _ = closest_surface_hits(caster, bs, shp[sidx], shd[sidx])
-                vis = sidx[ts >= shdist[sidx]]
-                emit[vis] += shc[vis]
-            for ch in range(3):
-                layers["surface"][:, ch] += np.bincount(pixel, weights=emit[:, ch], minlength=npix)
-            keep = cok & (cb.max(axis=1) > 1e-5)
-            parent = np.repeat(np.arange(k), 2)[keep]
-            pos, dirs, beta, medium = cp[keep], cd[keep], cb[keep], cm[keep]
-            depth, pixel, rng = depth[parent] + 1, pixel[parent], rng[parent] ^ (np.uint64(0x9E37) * (keep.nonzero()[0] % 2 + 1).astype(np.uint64))
-        done += n
-        if progress is not None:
-            progress(done, total)
+    chunk = 1 << 18
+    for p in range(spp):
+        media_data = media_for_pass(p)
+        for c0 in range(0, npix, chunk):
+            n = min(chunk, npix - c0)
+            _trace_batch(bs, caster, pool, threads, media_data, seed, p * npix + c0, n, npix, sett, settings, layers)
+            if progress is not None:
+                progress(p * npix + c0 + n, total)
     caster.close()
     if pool is not None:
         pool.shutdown()
-    spp_done = done // npix
-    out = {name: (v / spp_done).reshape(H, W, 3) for name, v in layers.items()}
+    out = {name: (v / spp).reshape(H, W, 3) for name, v in layers.items()}
     image = sum(out.values())
-    return image, out, {"time_s": time.perf_counter() - t0, "spp": spp_done}
+    return image, out, {"time_s": time.perf_counter() - t0, "spp": spp}
+
+
+def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, sett, settings, layers):
+    """n camera paths starting at global sample index `done`, traced to the end, added into layers."""
+    pos, dirs = np.zeros((n, 3)), np.zeros((n, 3))
+    pixel = np.zeros(n, np.int64)
+    rng = np.zeros(n, np.uint64)
+    generate_camera_rays(bs.camera, seed, done, n, pos, dirs, pixel, rng)
+    beta = np.ones((n, 3))
+    roulette_rng = np.random.default_rng([seed, done])
+    medium = np.full(n, -1, np.int64)
+    depth = np.zeros(n, np.int64)
+    while len(pos):
+        t, surf, ng, ns = closest_surface_hits(caster, bs, pos, dirs)
+        tl, li = np.empty(len(pos)), np.empty(len(pos), np.int64)
+        _light_hits(bs.lights, pos, dirs, t, tl, li)
+        tev = np.minimum(t, tl)
+        inside = np.flatnonzero((medium >= 0) & np.isfinite(tev))
+        contrib = np.zeros((len(pos), 3, 3))
+        for m in np.unique(medium[inside]):
+            sub = inside[medium[inside] == m]
+            md = media_data.get(int(m))
+            if md is not None and md.count:
+                # weak branches (internal reflections) are evaluated with probability beta_max / roulette,
+                # their weight divided by it: unbiased, and most of the cost was in branches of weight < 0.01
+                q = np.minimum(1.0, beta[sub].max(axis=1) / max(settings["roulette"], 1e-300))
+                keep = roulette_rng.random(len(sub)) < q
+                ev = sub[keep]
+                beta_ev = beta.copy()
+                beta_ev[ev] /= q[keep, None]
+                eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, bs.media[m], md.kernel_tuple(),
+                              sett, contrib)
+            st = bs.media[m, 0:3] + bs.media[m, 3:6]
+            beta[sub] *= np.exp(-st[None, :] * tev[sub, None])
+        for c, name in enumerate(COMPONENTS):
+            for ch in range(3):
+                layers[name][:, ch] += np.bincount(pixel, weights=contrib[:, c, ch], minlength=npix)
+        k = len(pos)
+        emit = np.zeros((k, 3))
+        cp, cd, cb = np.zeros((2 * k, 3)), np.zeros((2 * k, 3)), np.zeros((2 * k, 3))
+        cm, cok = np.zeros(2 * k, np.int64), np.zeros(2 * k, np.bool_)
+        ks = k * len(bs.lights)
+        shp, shd, shdist, shc, shok = (np.zeros((ks, 3)), np.zeros((ks, 3)), np.zeros(ks), np.zeros((ks, 3)),
+                                       np.zeros(ks, np.bool_))
+        li = np.where(tl < t, li, -1)
+        _interact(bs.surfaces, bs.media, bs.lights, pos, dirs, beta, medium, depth, rng, t, surf, ng, ns, li,
+                  bs.eps, settings["max_split_depth"], seed, emit, cp, cd, cb, cm, cok, shp, shd, shdist, shc, shok)
+        sidx = np.flatnonzero(shok)
+        if len(sidx):
+            ts, _, _, _ = closest_surface_hits(caster, bs, shp[sidx], shd[sidx])
+            vis = sidx[ts >= shdist[sidx]]
+            np.add.at(emit, vis // len(bs.lights), shc[vis])
+        for ch in range(3):
+            layers["surface"][:, ch] += np.bincount(pixel, weights=emit[:, ch], minlength=npix)
+        keep = cok & (cb.max(axis=1) > 1e-5)
+        parent = np.repeat(np.arange(k), 2)[keep]
+        pos, dirs, beta, medium = cp[keep], cd[keep], cb[keep], cm[keep]
+        depth, pixel = depth[parent] + 1, pixel[parent]
+        rng = rng[parent] ^ (np.uint64(0x9E37) * (keep.nonzero()[0] % 2 + 1).astype(np.uint64))

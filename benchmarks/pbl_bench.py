@@ -1,0 +1,172 @@
+#!/usr/bin/env python3
+"""Benchmark of the point-based method against the reference path tracer, per example scene.
+
+    .venv/bin/python benchmarks/pbl_bench.py [--scenes a,b] [--resolution 96] [--pbl-spp 4] [--volpath-spp 16]
+                                            [--ref-spp 2048] [--threads 2] [--cache DIR] [--memory-check]
+
+For each scene, every stage in its own process (peak memory is per process; each process warms numba's cache
+first at 8x8 so that loading compiled code is not timed):
+  1. a high-spp volpath reference, rendered as two halves with different seeds (their mean is the reference; a
+     quarter of the halves' relMSE against each other estimates the reference's own noise); kept in the cache
+     directory and reused while the scene is unchanged;
+  2. `place-samples` (time, peak memory) and the multiple-scattering tables (time);
+  3. `render --method pbl` at --pbl-spp: time, peak memory, relMSE against the reference;
+  4. `render --method volpath` at --volpath-spp: time, relMSE; the time volpath needs to reach pbl's error is
+     t_volpath * relMSE_volpath / relMSE_pbl (relMSE of an unbiased estimator falls as 1/spp; the reference's
+     own noise is subtracted from both errors first).
+relMSE is `pbvol compare`'s: mean over pixels and channels of (a - b)^2 / (b^2 + 0.01).
+With --memory-check, pbl also renders the first scene at 512x512, 1 spp, for its peak memory.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+RENDER = r"""
+import json, sys
+from pathlib import Path
+from pbvol_cli.pipeline.render import RenderOptions, render_scene
+scene, out, method, spp, seed, threads, res, cache = sys.argv[1:9]
+res = tuple(int(v) for v in res.split("x"))
+kw = dict(method=method, threads=int(threads), cache_dir=Path(cache), quiet=True)
+render_scene(Path(scene), Path(out), RenderOptions(spp=1, resolution=(8, 8), **kw))  # warm numba's cache
+s = render_scene(Path(scene), Path(out), RenderOptions(spp=int(spp), seed=int(seed), resolution=res, **kw))
+print(json.dumps(s))
+"""
+
+PLACE = r"""
+import json, sys, time
+from pathlib import Path
+from pbvol_cli import config as C
+from pbvol_cli.geometry.scene_build import build_scene
+from pbvol_cli.pipeline.precompute import precompute
+from pbvol_cli.pipeline.render import peak_memory_mb, set_threads
+from pbvol_cli.pipeline.samples import get_light_samples
+scene_path, threads, cache = Path(sys.argv[1]), int(sys.argv[2]), Path(sys.argv[3])
+scene = C.load_scene(scene_path)
+set_threads(threads)
+t = time.perf_counter()
+precompute(scene_path, cache, None, None, False, True, lambda line: None)
+t_lut = time.perf_counter() - t
+built = build_scene(scene, scene_path, (8, 8))
+t = time.perf_counter()
+res = get_light_samples(built, scene.render.pbl, scene.render.seed, cache, threads, force=True)
+t_samples = time.perf_counter() - t
+print(json.dumps({"lut_s": t_lut, "samples_s": t_samples, "peak_memory_mb": peak_memory_mb(),
+                  "volume_samples": int(len(res.samples.v_len)), "surface_samples": int(len(res.samples.s_pos))}))
+"""
+
+
+def _run(code: str, *args) -> dict:
+    r = subprocess.run([sys.executable, "-c", code, *map(str, args)], capture_output=True, text=True, cwd=ROOT,
+                       env={**os.environ, "PYTHONWARNINGS": "ignore"})
+    if r.returncode != 0:
+        raise SystemExit(f"failed: {args}\n{r.stderr[-3000:]}")
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def rel_mse(a, b) -> float:
+    from pbvol_cli.pipeline.compare import image_metrics
+
+    return image_metrics(a, b)["rel_mse"]
+
+
+def reference(scene: Path, res: str, spp: int, threads: int, cache: Path):
+    """Mean of two volpath halves (seeds 101, 102) and the estimated relMSE of that mean's own noise."""
+    import numpy as np
+
+    from pbvol_cli.imageio import read_exr
+
+    refdir = cache / "bench-refs"
+    refdir.mkdir(parents=True, exist_ok=True)
+    halves, meta_hash = [], None
+    for seed in (101, 102):
+        out = refdir / f"{scene.stem}_{res}_{spp // 2}spp_seed{seed}.exr"
+        if out.exists():
+            img, meta = read_exr(out)
+            if meta.get("scene_hash") != _scene_hash(scene, res):
+                out.unlink()
+        if not out.exists():
+            _run(RENDER, scene, out, "volpath", spp // 2, seed, threads, res, cache)
+        halves.append(read_exr(out)[0].astype(np.float64))
+    ref = 0.5 * (halves[0] + halves[1])
+    return ref, rel_mse(halves[0], halves[1]) / 4.0
+
+
+def _scene_hash(scene: Path, res: str) -> str:
+    from pbvol_cli import config as C
+    from pbvol_cli.geometry.scene_build import build_scene
+    from pbvol_cli.pipeline.render import scene_hash
+
+    sc = C.load_scene(scene)
+    return scene_hash(sc, build_scene(sc, scene, tuple(int(v) for v in res.split("x"))))
+
+
+def main():
+    import numpy as np
+
+    from pbvol_cli.imageio import read_exr
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scenes", default="", help="comma list of config names (default: all in configs/)")
+    ap.add_argument("--resolution", type=int, default=96)
+    ap.add_argument("--pbl-spp", type=int, default=4)
+    ap.add_argument("--volpath-spp", type=int, default=16)
+    ap.add_argument("--ref-spp", type=int, default=2048)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
+    ap.add_argument("--memory-check", action="store_true")
+    ap.add_argument("--json", type=Path, help="also write the rows here")
+    args = ap.parse_args()
+    names = [s for s in args.scenes.split(",") if s] or sorted(p.stem for p in (ROOT / "configs").glob("*.toml"))
+    res = f"{args.resolution}x{args.resolution}"
+    tmp = args.cache / "bench-out"
+    tmp.mkdir(parents=True, exist_ok=True)
+    rows = []
+    hdr = (f"{'scene':<14} {'samples s':>9} {'MiB':>5} {'lut s':>6} {'pbl s':>7} {'MiB':>5} {'relMSE':>8} "
+           f"{'volpath s':>9} {'relMSE':>8} {'vp s @pbl err':>13} {'speed-up':>8} {'ref noise':>9}")
+    print(f"{res}, pbl {args.pbl_spp} spp, volpath {args.volpath_spp} spp, reference volpath {args.ref_spp} spp, "
+          f"{args.threads} threads")
+    print(hdr)
+    for name in names:
+        scene = ROOT / "configs" / f"{name}.toml"
+        ref, ref_noise = reference(scene, res, args.ref_spp, args.threads, args.cache)
+        place = _run(PLACE, scene, args.threads, args.cache)
+        pbl = _run(RENDER, scene, tmp / f"{name}_pbl.exr", "pbl", args.pbl_spp, 1, args.threads, res, args.cache)
+        vp = _run(RENDER, scene, tmp / f"{name}_vp.exr", "volpath", args.volpath_spp, 1, args.threads, res,
+                  args.cache)
+        e_pbl = rel_mse(read_exr(tmp / f"{name}_pbl.exr")[0].astype(np.float64), ref)
+        e_vp = rel_mse(read_exr(tmp / f"{name}_vp.exr")[0].astype(np.float64), ref)
+        # both errors contain the reference's own noise: subtract it (at least 1e-12 left)
+        e_pbl_c, e_vp_c = max(e_pbl - ref_noise, 1e-12), max(e_vp - ref_noise, 1e-12)
+        t_eq = vp["time_s"] * e_vp_c / e_pbl_c
+        row = {"scene": name, "resolution": res, "samples_s": place["samples_s"], "samples_mib": place["peak_memory_mb"],
+               "volume_samples": place["volume_samples"], "lut_s": place["lut_s"], "pbl_s": pbl["time_s"],
+               "pbl_mib": pbl["peak_memory_mb"], "pbl_rel_mse": e_pbl, "volpath_s": vp["time_s"],
+               "volpath_rel_mse": e_vp, "volpath_s_at_pbl_error": t_eq,
+               "speed_up": t_eq / (pbl["time_s"] + place["samples_s"]), "ref_noise_rel_mse": ref_noise}
+        rows.append(row)
+        print(f"{name:<14} {place['samples_s']:>9.2f} {place['peak_memory_mb']:>5.0f} {place['lut_s']:>6.1f} "
+              f"{pbl['time_s']:>7.2f} {pbl['peak_memory_mb']:>5.0f} {e_pbl:>8.4f} {vp['time_s']:>9.2f} {e_vp:>8.4f} "
+              f"{t_eq:>13.2f} {row['speed_up']:>8.2f} {ref_noise:>9.5f}", flush=True)
+    print("speed-up = volpath's time to pbl's error / (place-samples + pbl render); tables are built once per "
+          "material and not counted")
+    if args.memory_check:
+        name = names[0]
+        m = _run(RENDER, ROOT / "configs" / f"{name}.toml", tmp / f"{name}_512.exr", "pbl", 1, 1, args.threads,
+                 "512x512", args.cache)
+        print(f"memory check: {name} pbl 512x512, 1 spp: {m['time_s']:.1f} s, peak {m['peak_memory_mb']:.0f} MiB")
+        rows.append({"scene": name, "resolution": "512x512", "pbl_s": m["time_s"], "pbl_mib": m["peak_memory_mb"]})
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+
+
+if __name__ == "__main__":
+    main()
