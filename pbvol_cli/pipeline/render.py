@@ -164,9 +164,10 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
     cache = cache_dir(opts.cache_dir)
     stages = {}
     t0 = time.perf_counter()
-    res = get_light_samples(built, pbl, seed, cache, threads)
+    has_media = len(built.medium_info) > 0
+    res = get_light_samples(built, pbl, seed, cache, threads) if has_media else None  # surfaces only: no samples
     stages["samples_s"] = time.perf_counter() - t0
-    stages["samples_reused"] = float(res.reused)
+    stages["samples_reused"] = float(res.reused) if res else 0.0
     t0 = time.perf_counter()
     media_tables = {}
     for m, info in enumerate(built.medium_info):
@@ -192,6 +193,8 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
     def media_for_pass(p: int) -> dict:
         """Pass p's light samples: the cached set for pass 0, a fresh set (seed + p, not cached) for the others,
         so that the light side's sampling noise (single beams visible as streaks) averages out over passes."""
+        if res is None:
+            return {}
         samples = res.samples
         if p > 0 and pbl.light_sets != 1 and (pbl.light_sets == 0 or p < pbl.light_sets):
             from pbvol_cli.pointbased.light_samples import place_light_samples
@@ -202,12 +205,13 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
             passes_samples_s[0] += time.perf_counter() - t
         elif p > 0 and pbl.light_sets > 1:
             return media_for_pass(p % pbl.light_sets)
-        return {m: MediumData(samples, m, built.media[m], media_tables[m]) for m in media_tables}
+        return {m: MediumData(samples, m, built.media[m], media_tables[m], pbl.beam_width) for m in media_tables}
 
     W, H = int(built.camera[12]), int(built.camera[13])
     prog, update = _progress(opts.quiet, f"pbl {W}x{H} {spp} spp")
     settings = {"kmax": pbl.kmax, "kmax_scattered": pbl.kmax_scattered, "cut_size": pbl.cut_size, "clamp": pbl.clamp,
-                "components": comps, "max_split_depth": pbl.max_split_depth, "roulette": pbl.roulette}
+                "components": comps, "max_split_depth": pbl.max_split_depth, "roulette": pbl.roulette,
+                "diffuse_bounces": pbl.diffuse_bounces, "kmax_diffuse": pbl.kmax_diffuse}
     with prog:
         img, layers, stats = render_pbl(built, media_for_pass, spp, seed, settings, threads, update)
     stages["render_s"] = stats["time_s"]

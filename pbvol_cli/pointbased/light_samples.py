@@ -24,7 +24,7 @@ from pbvol_cli.physics.fresnel import fresnel_dielectric, reflect, refract
 from pbvol_cli.physics.lights import light_sample
 from pbvol_cli.physics.sampling import rand, seed_state
 from pbvol_cli.pointbased.surface_samples import poisson_disk
-from pbvol_cli.render.intersect import closest_surface_hits
+from pbvol_cli.render.intersect import closest_surface_hits, visible
 
 
 @dataclass
@@ -201,8 +201,7 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
         wdir, dist, E, ok = np.zeros((n, 3)), np.zeros(n), np.zeros((n, 3)), np.zeros(n, np.bool_)
         _connect(bs.lights, li, pos, nrm, eps, seed, wdir, dist, E, ok)
         idx = np.flatnonzero(ok)
-        t, _, _, _ = closest_surface_hits(caster, bs, pos[idx] + eps * nrm[idx], wdir[idx])
-        vis = idx[t >= dist[idx] * (1 - 1e-7) - 2 * eps]
+        vis = idx[visible(caster, bs, pos[idx] + eps * nrm[idx], wdir[idx], dist[idx] * (1 - 1e-7) - 2 * eps)]
         irr[vis] += E[vis]
         # refract into the object through the outer surface (a hit at distance 0: the sample itself)
         bpos, bdir = pos[vis].copy(), -wdir[vis]

@@ -104,3 +104,20 @@ def closest_surface_hits(caster, built, origins: np.ndarray, dirs: np.ndarray):
     _merge_hits(built.spheres, built.tri_surface, built.tri_normals, np.ascontiguousarray(origins, np.float64),
                 np.ascontiguousarray(dirs, np.float64), t, prim, u, v, ng, t_out, surf, ng_out, ns_out)
     return t_out, surf, ng_out, ns_out
+
+
+@njit(parallel=True, cache=True)
+def light_hits(lights, pos, dirs, tmax, t_out, li_out):
+    """The closest emitter (sphere or quad light) along each ray before tmax: distance and index (-1: none)."""
+    for k in prange(pos.shape[0]):
+        t, li = intersect_lights(lights, pos[k, 0], pos[k, 1], pos[k, 2], dirs[k, 0], dirs[k, 1], dirs[k, 2], tmax[k])
+        t_out[k], li_out[k] = t, li
+
+
+def visible(caster, built, origins: np.ndarray, dirs: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Shadow rays: True where neither a surface nor an emitter lies closer than dist (emitters are opaque:
+    a quad light in front of the sky hides it, as the path tracer sees it)."""
+    t, _, _, _ = closest_surface_hits(caster, built, origins, dirs)
+    tl, li = np.empty(len(origins)), np.empty(len(origins), np.int64)
+    light_hits(built.lights, origins, dirs, np.minimum(t, dist), tl, li)
+    return (t >= dist) & ~(li >= 0)

@@ -27,14 +27,15 @@ from pbvol_cli.physics.lights import ENVIRONMENT, emitted_toward, intersect_ligh
 from pbvol_cli.physics.sampling import cosine_hemisphere, rand, seed_state
 from pbvol_cli.pointbased.estimators import double_multiple, single_scattering
 from pbvol_cli.render.camera import generate_camera_rays
-from pbvol_cli.render.intersect import closest_surface_hits
+from pbvol_cli.render.intersect import closest_surface_hits, light_hits, visible
 
 COMPONENTS = ("single", "double", "multiple")
 
 
 @njit(cache=True)
-def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out):
-    """Medium contribution of ray i over [0, tseg[i]] into out[i, component, channel]."""
+def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse):
+    """Medium contribution of ray i over [0, tseg[i]] into out[i, component, channel]. A ray after a diffuse bounce
+    (diffuse[i] > 0) takes settings[7] random points for every component (sec. 3.6: averaged over the bounces)."""
     tree, v_start, v_dir, v_len, v_power, v_area, v_centre, v_scat, v_rb, tabs = md
     sig_a, sig_s = med[0:3], med[3:6]
     kind, g = int(med[6]), med[7]
@@ -50,6 +51,8 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out):
     # single scattering at kmax points; double and multiple (smooth along the ray) at their own k2 points
     for comp in range(2):
         n = kmax if comp == 0 else k2
+        if diffuse[i] > 0:
+            n = int(settings[7])
         if (comp == 0 and not do_s) or (comp == 1 and not (do_d or do_m)):
             continue
         for k in range(n):
@@ -79,27 +82,20 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out):
 
 
 @njit(nogil=True, cache=True)
-def _eval_segments(idx, pos, dirs, beta, tseg, rng, med, md, settings, out):
+def _eval_segments(idx, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse):
     for k in range(idx.shape[0]):
-        _segment(idx[k], pos, dirs, beta, tseg, rng, med, md, settings, out)
+        _segment(idx[k], pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse)
 
 
-def eval_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, md, settings, out):
+def eval_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse):
     """Numba's parallel loops reject nested tuples (the octree, the tables): threads over slices instead, the
     kernel releasing the GIL. Rays are independent, so the result does not depend on the split."""
     if threads <= 1 or len(idx) < 64:
-        _eval_segments(idx, pos, dirs, beta, tseg, rng, med, md, settings, out)
+        _eval_segments(idx, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse)
         return
     # interleaved slices balance rays of different cost
-    list(pool.map(lambda j: _eval_segments(idx[j::threads], pos, dirs, beta, tseg, rng, med, md, settings, out),
-                  range(threads)))
-
-
-@njit(parallel=True, cache=True)
-def _light_hits(lights, pos, dirs, tmax, t_out, li_out):
-    for k in prange(pos.shape[0]):
-        t, li = intersect_lights(lights, pos[k, 0], pos[k, 1], pos[k, 2], dirs[k, 0], dirs[k, 1], dirs[k, 2], tmax[k])
-        t_out[k], li_out[k] = t, li
+    list(pool.map(lambda j: _eval_segments(idx[j::threads], pos, dirs, beta, tseg, rng, med, md, settings, out,
+                                           diffuse), range(threads)))
 
 
 @njit(cache=True)
@@ -110,21 +106,32 @@ def _cosine_direction(u1, u2, nx, ny, nz):
 
 @njit(parallel=True, cache=True)
 def _interact(surfaces, media, lights, pos, dirs, beta, medium, depth, rng, t, surf, ng, ns, li, eps, max_depth,
-              seed, emit, child_pos, child_dir, child_beta, child_med, child_ok, sh_pos, sh_dir, sh_dist, sh_C, sh_ok):
+              seed, emit, child_pos, child_dir, child_beta, child_med, child_ok, sh_pos, sh_dir, sh_dist, sh_C, sh_ok,
+              state, child_state, max_diffuse):
     """Emission, then the surface at t: up to two children per ray (reflected, transmitted); at a diffuse surface,
-    one shadow ray per light (slots i * n_lights + light)."""
+    one shadow ray per light (slots i * n_lights + light) and, below max_diffuse bounces, one cosine-sampled
+    child (slot 2i) for indirect light. state[i] = 4 x (diffuse bounces) + 2 x (a specular interface crossed
+    since the last diffuse bounce) + ... : lights and the environment seen directly after a diffuse bounce are
+    already counted by the shadow rays, which stop at every surface; seen through a specular chain (a caustic
+    through the glass) they are not, and count."""
     nl = lights.shape[0]
     for i in prange(pos.shape[0]):
         child_ok[2 * i] = child_ok[2 * i + 1] = False
         for lk in range(nl):
             sh_ok[i * nl + lk] = False
         dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        n_diffuse = state[i] >> 2
+        counts = n_diffuse == 0 or (state[i] & 2) != 0  # emission not already counted by a shadow ray
+        if li[i] >= 0 and not counts:
+            continue
         if li[i] >= 0:  # an area light in front of the surface
             e = emitted_toward(lights, li[i], dx, dy, dz, pos[i, 0], pos[i, 1], pos[i, 2], t[i])
             for c in range(3):
                 emit[i, c] += beta[i, c] * lights[li[i], 1 + c] * e
             continue
         s = surf[i]
+        if s < 0 and not counts:
+            continue
         if s < 0:
             for k in range(nl):
                 if lights[k, 0] == ENVIRONMENT:
@@ -168,6 +175,17 @@ def _interact(surfaces, media, lights, pos, dirs, beta, medium, depth, rng, t, s
                     sh_dir[j, 0], sh_dir[j, 1], sh_dir[j, 2] = wx, wy, wz
                     sh_dist[j] = dist * (1.0 - 1e-7) - 2.0 * eps if dist < np.inf else np.inf
                     sh_ok[j] = True
+            if n_diffuse < max_diffuse:
+                j = 2 * i
+                wx, wy, wz = _cosine_direction(rand(st, 0), rand(st, 0), nx, ny, nz)
+                if wx * gx + wy * gy + wz * gz > 0.0:
+                    child_dir[j, 0], child_dir[j, 1], child_dir[j, 2] = wx, wy, wz
+                    child_pos[j, 0], child_pos[j, 1], child_pos[j, 2] = hx + eps * gx, hy + eps * gy, hz + eps * gz
+                    for c in range(3):  # albedo: (albedo / pi) cos / (cos / pi)
+                        child_beta[j, c] = beta[i, c] * surfaces[s, 5 + c]
+                    child_med[j] = medium[i]
+                    child_state[j] = (n_diffuse + 1) << 2
+                    child_ok[j] = True
             rng[i] = st[0]
             continue
         # specular: reflected child (slot 2i) and transmitted child (slot 2i + 1)
@@ -191,6 +209,7 @@ def _interact(surfaces, media, lights, pos, dirs, beta, medium, depth, rng, t, s
             for c in range(3):
                 child_beta[j, c] = beta[i, c] * F * rscale[c]
             child_med[j] = medium[i]
+            child_state[j] = state[i] | 2
             child_ok[j] = True
         if kt > 0.0:
             j = 2 * i + 1
@@ -203,13 +222,14 @@ def _interact(surfaces, media, lights, pos, dirs, beta, medium, depth, rng, t, s
             for c in range(3):
                 child_beta[j, c] = beta[i, c] * kt
             child_med[j] = int(surfaces[s, 1]) if entering else int(surfaces[s, 2])
+            child_state[j] = state[i] | 2
             child_ok[j] = True
 
 
 class MediumData:
     """A medium's light samples prepared for the kernels: octree, per-sample arrays, its three tables."""
 
-    def __init__(self, samples, medium: int, media_row: np.ndarray, tables: list):
+    def __init__(self, samples, medium: int, media_row: np.ndarray, tables: list, beam_width: float = 1.0):
         from pbvol_cli.pointbased.octree import build_octree
 
         sel = samples.v_medium == medium
@@ -217,14 +237,15 @@ class MediumData:
         self.dir = np.ascontiguousarray(samples.v_dir[sel])
         self.len = np.ascontiguousarray(samples.v_len[sel])
         self.power = np.ascontiguousarray(samples.v_power[sel])
-        self.area = np.ascontiguousarray(samples.v_area[sel])
+        # single scattering's kernel: a disc of beam_width x the beam's own radius (area x beam_width^2)
+        self.area = np.ascontiguousarray(samples.v_area[sel]) * beam_width ** 2
         st = media_row[0:3] + media_row[3:6]
         safe = np.where(st > 0, st, 1.0)
         absorbed = -np.expm1(-st[None, :] * self.len[:, None])
         self.scat = self.power * np.where(st > 0, media_row[3:6] / safe, 0.0)[None, :] * absorbed
         self.centre = self.start + 0.5 * self.len[:, None] * self.dir
-        rb = np.sqrt(self.area / np.pi)
-        self.rb = rb
+        rb = np.sqrt(self.area / np.pi)  # the kernel's radius: the boxes must hold it
+        self.rb = rb / beam_width  # the beam's own radius: double scattering's 1/r^2 smoothing
         end = self.start + self.len[:, None] * self.dir
         box_lo = np.minimum(self.start, end) - rb[:, None]
         box_hi = np.maximum(self.start, end) + rb[:, None]
@@ -245,7 +266,8 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, settings: di
     npix = W * H
     sett = np.array([settings["kmax"], settings["cut_size"], settings["clamp"],
                      float("single" in settings["components"]), float("double" in settings["components"]),
-                     float("multiple" in settings["components"]), settings["kmax_scattered"]])
+                     float("multiple" in settings["components"]), settings["kmax_scattered"],
+                     settings["kmax_diffuse"]])
     caster = TriangleCaster(bs.vertices, bs.faces, threads)
     pool = ThreadPoolExecutor(threads) if threads > 1 else None
     layers = {name: np.zeros((npix, 3)) for name in (*COMPONENTS, "surface")}
@@ -277,10 +299,11 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
     roulette_rng = np.random.default_rng([seed, done])
     medium = np.full(n, -1, np.int64)
     depth = np.zeros(n, np.int64)
+    state = np.zeros(n, np.int64)  # see _interact
     while len(pos):
         t, surf, ng, ns = closest_surface_hits(caster, bs, pos, dirs)
         tl, li = np.empty(len(pos)), np.empty(len(pos), np.int64)
-        _light_hits(bs.lights, pos, dirs, t, tl, li)
+        light_hits(bs.lights, pos, dirs, t, tl, li)
         tev = np.minimum(t, tl)
         inside = np.flatnonzero((medium >= 0) & np.isfinite(tev))
         contrib = np.zeros((len(pos), 3, 3))
@@ -296,7 +319,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
                 beta_ev = beta.copy()
                 beta_ev[ev] /= q[keep, None]
                 eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, bs.media[m], md.kernel_tuple(),
-                              sett, contrib)
+                              sett, contrib, state >> 2)
             st = bs.media[m, 0:3] + bs.media[m, 3:6]
             beta[sub] *= np.exp(-st[None, :] * tev[sub, None])
         for c, name in enumerate(COMPONENTS):
@@ -305,22 +328,22 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
         k = len(pos)
         emit = np.zeros((k, 3))
         cp, cd, cb = np.zeros((2 * k, 3)), np.zeros((2 * k, 3)), np.zeros((2 * k, 3))
-        cm, cok = np.zeros(2 * k, np.int64), np.zeros(2 * k, np.bool_)
+        cm, cok, cstate = np.zeros(2 * k, np.int64), np.zeros(2 * k, np.bool_), np.zeros(2 * k, np.int64)
         ks = k * len(bs.lights)
         shp, shd, shdist, shc, shok = (np.zeros((ks, 3)), np.zeros((ks, 3)), np.zeros(ks), np.zeros((ks, 3)),
                                        np.zeros(ks, np.bool_))
         li = np.where(tl < t, li, -1)
         _interact(bs.surfaces, bs.media, bs.lights, pos, dirs, beta, medium, depth, rng, t, surf, ng, ns, li,
-                  bs.eps, settings["max_split_depth"], seed, emit, cp, cd, cb, cm, cok, shp, shd, shdist, shc, shok)
+                  bs.eps, settings["max_split_depth"], seed, emit, cp, cd, cb, cm, cok, shp, shd, shdist, shc, shok,
+                  state, cstate, settings["diffuse_bounces"])
         sidx = np.flatnonzero(shok)
         if len(sidx):
-            ts, _, _, _ = closest_surface_hits(caster, bs, shp[sidx], shd[sidx])
-            vis = sidx[ts >= shdist[sidx]]
+            vis = sidx[visible(caster, bs, shp[sidx], shd[sidx], shdist[sidx])]
             np.add.at(emit, vis // len(bs.lights), shc[vis])
         for ch in range(3):
             layers["surface"][:, ch] += np.bincount(pixel, weights=emit[:, ch], minlength=npix)
         keep = cok & (cb.max(axis=1) > 1e-5)
         parent = np.repeat(np.arange(k), 2)[keep]
-        pos, dirs, beta, medium = cp[keep], cd[keep], cb[keep], cm[keep]
+        pos, dirs, beta, medium, state = cp[keep], cd[keep], cb[keep], cm[keep], cstate[keep]
         depth, pixel = depth[parent] + 1, pixel[parent]
         rng = rng[parent] ^ (np.uint64(0x9E37) * (keep.nonzero()[0] % 2 + 1).astype(np.uint64))
