@@ -251,9 +251,9 @@ class PblSettings(Strict):
     beam_width: float = Field(1.0, ge=0.5, description="single scattering's kernel radius / the beam's radius "
                               "(wider: less noise from the light samples, more blur, and a deficit near the "
                               "boundary: 2% at 2)")
-    kmax: int = Field(16, ge=1, description="points per camera-ray segment in a medium for single scattering (eq. 9)")
-    kmax_scattered: int = Field(4, ge=1, description="points per segment for double and multiple (smooth along rays)")
-    cut_size: int = Field(32, ge=0, description="octree refinements per point for double and multiple scattering "
+    kmax: int = Field(4, ge=1, description="points per camera-ray segment in a medium for single scattering (eq. 9)")
+    kmax_scattered: int = Field(1, ge=1, description="points per segment for double and multiple (smooth along rays)")
+    cut_size: int = Field(8, ge=0, description="octree refinements per point for double and multiple scattering "
                           "(stochastic light cut: more = less noise, more time)")
     clamp: float = Field(0.02, ge=0, description="minimum distance in the 1/r^2 of double scattering, scene units")
     max_split_depth: int = Field(8, ge=1, description="specular interfaces a camera path may split at")

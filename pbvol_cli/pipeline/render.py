@@ -186,7 +186,7 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
             from pbvol_cli.multiple_scattering.table import empty_table
 
             filler = empty_table()
-        media_tables[m] = [t or filler for t in tables]
+        media_tables[m] = [(t or filler).render_args() for t in tables]  # expanded once for every pass
     stages["tables_s"] = time.perf_counter() - t0
     passes_samples_s = [0.0]
 

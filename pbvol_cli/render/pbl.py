@@ -250,7 +250,8 @@ class MediumData:
         box_lo = np.minimum(self.start, end) - rb[:, None]
         box_hi = np.maximum(self.start, end) + rb[:, None]
         self.tree = build_octree(self.centre, box_lo, box_hi, self.dir, self.scat)
-        self.tabs = tuple(t.render_args() for t in tables)
+        # tables: MSTable objects, or their render_args() already expanded (shared by every pass's samples)
+        self.tabs = tuple(t if isinstance(t, tuple) else t.render_args() for t in tables)
         self.count = int(sel.sum())
 
     def kernel_tuple(self):
