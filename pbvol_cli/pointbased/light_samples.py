@@ -40,9 +40,10 @@ class LightSamples:
     v_power: np.ndarray  # (m, 3) beam power at the segment start (W)
     v_area: np.ndarray  # (m,) beam cross-section
     v_medium: np.ndarray  # (m,) medium ids
+    v_ends: np.ndarray  # (m,) 1: the segment starts on the boundary, 2: it ends there (both: 3)
 
     FIELDS = ("s_pos", "s_nrm", "s_surface", "s_area", "s_irradiance", "v_start", "v_dir", "v_len", "v_power",
-              "v_area", "v_medium")
+              "v_area", "v_medium", "v_ends")
 
     def arrays(self) -> dict:
         return {k: getattr(self, k) for k in self.FIELDS}
@@ -52,7 +53,8 @@ class LightSamples:
         ls = cls(**{k: d[k] for k in cls.FIELDS})
         n, m = len(ls.s_pos), len(ls.v_start)
         shapes_ok = (ls.s_nrm.shape == (n, 3) and ls.s_irradiance.shape == (n, 3) and ls.v_dir.shape == (m, 3)
-                     and ls.v_power.shape == (m, 3) and len(ls.v_len) == m and len(ls.v_area) == m)
+                     and ls.v_power.shape == (m, 3) and len(ls.v_len) == m and len(ls.v_area) == m
+                     and len(ls.v_ends) == m)
         if not shapes_ok or not all(np.all(np.isfinite(getattr(ls, k))) for k in ("v_start", "v_power", "v_len")):
             raise ValueError("inconsistent light samples")
         return ls
@@ -128,9 +130,10 @@ def _cross(surfaces, pos, d, power, medium, cosx, ng, ns, t, surf, eps, alive):
 
 @njit(parallel=True, cache=True)
 def _segments(media, surfaces, pos, d, power, medium, area, t, surf, ng, ns, eps, nseg, p_min,
-              o_start, o_dir, o_len, o_power, o_area, o_medium, alive):
+              o_start, o_dir, o_len, o_power, o_area, o_medium, o_ends, alive):
     """Cut each beam's path to the boundary into nseg volume samples (equal fractions of 1 - exp(-sigma t) in the
-    most penetrating channel), then reflect it internally (Fresnel F) or end it."""
+    most penetrating channel), then reflect it internally (Fresnel F) or end it. o_ends marks the segments that
+    start (1) or end (2) on the boundary."""
     for k in prange(pos.shape[0]):
         base = k * nseg
         m = medium[k]
@@ -158,6 +161,7 @@ def _segments(media, surfaces, pos, d, power, medium, area, t, surf, ng, ns, eps
             o_len[i] = t1 - t0
             o_area[i] = area[k]
             o_medium[i] = m
+            o_ends[i] = (1 if q == 0 else 0) | (2 if q == nseg - 1 else 0)
             t0 = t1
         # internal reflection at the exit
         s = surf[k]
@@ -182,6 +186,48 @@ def _segments(media, surfaces, pos, d, power, medium, area, t, surf, ng, ns, eps
 # ----------------------------------------------------------------------------- driver
 
 
+def _lit(caster, bs, li, pos, nrm, eps, seed, wdir, dist, E):
+    """One sample of light li from each point (normal nrm): fills wdir, dist, E (irradiance); returns the
+    indices of the points that face the light and see it."""
+    ok = np.zeros(len(pos), np.bool_)
+    _connect(bs.lights, li, pos, nrm, eps, seed, wdir, dist, E, ok)
+    idx = np.flatnonzero(ok)
+    return idx[visible(caster, bs, pos[idx] + eps * nrm[idx], wdir[idx], dist[idx] * (1 - 1e-7) - 2 * eps)]
+
+
+def _indirect(caster, bs, pos, nrm, eps, seed):
+    """Indirect diffuse light at the surface samples (sec. 3.4), one bounce: from each sample a cosine-weighted
+    direction; where it meets a diffuse surface, that point's direct light (one sample per light) reflected,
+    L = albedo / pi E_direct, arrives with irradiance-equivalent L pi (= L cos / pdf). Directions reaching a light
+    or the environment are the direct connections' part. Returns (sample indices, directions toward the
+    light's origin, irradiance)."""
+    from pbvol_cli.geometry.scene_build import DIFFUSE
+
+    n = len(pos)
+    rng = np.random.default_rng([seed, 0x1D1])
+    u1, u2 = rng.random(n), rng.random(n)
+    r, phi = np.sqrt(u1), 2 * np.pi * u2
+    local = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(0.0, 1 - u1))], axis=1)
+    a = np.where(np.abs(nrm[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
+    t1 = np.cross(a, nrm)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(nrm, t1)
+    wdir = local[:, :1] * t1 + local[:, 1:2] * t2 + local[:, 2:] * nrm
+    t, s, ng, _ = closest_surface_hits(caster, bs, pos + eps * nrm, wdir)
+    hit = np.flatnonzero(np.isfinite(t) & (s >= 0))
+    hit = hit[bs.surfaces[s[hit], 0] == DIFFUSE]
+    x = pos[hit] + t[hit, None] * wdir[hit]
+    facing = ng[hit] * np.where(np.sum(ng[hit] * wdir[hit], axis=1) < 0, 1.0, -1.0)[:, None]
+    E_x = np.zeros((len(hit), 3))
+    for li in range(len(bs.lights)):
+        wd, dist, E = np.zeros((len(hit), 3)), np.zeros(len(hit)), np.zeros((len(hit), 3))
+        vis = _lit(caster, bs, li, x, facing, eps, seed + 0x5EED, wd, dist, E)
+        E_x[vis] += E[vis]
+    E_in = bs.surfaces[s[hit], 5:8] * E_x  # (albedo / pi) E_x pi
+    keep = E_in.max(axis=1) > 0
+    return hit[keep], wdir[hit[keep]], E_in[keep]
+
+
 def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max_reflections: int,
                         max_layers: int, seed: int, threads: int = 2) -> LightSamples:
     """Surface samples on every medium-holding object's outer layer, their beams and the volume samples."""
@@ -196,22 +242,19 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
     caster = TriangleCaster(bs.vertices, bs.faces, threads)
     eps = bs.eps
     irr = np.zeros((n, 3))
-    beams = []  # (pos, dir, power, medium, cos_t)
-    for li in range(len(bs.lights)):
-        wdir, dist, E, ok = np.zeros((n, 3)), np.zeros(n), np.zeros((n, 3)), np.zeros(n, np.bool_)
-        _connect(bs.lights, li, pos, nrm, eps, seed, wdir, dist, E, ok)
-        idx = np.flatnonzero(ok)
-        vis = idx[visible(caster, bs, pos[idx] + eps * nrm[idx], wdir[idx], dist[idx] * (1 - 1e-7) - 2 * eps)]
-        irr[vis] += E[vis]
-        # refract into the object through the outer surface (a hit at distance 0: the sample itself)
-        bpos, bdir = pos[vis].copy(), -wdir[vis]
-        bpow = E[vis] * area
+    beams = []  # (pos, dir, power, medium, cross-section)
+
+    def enter(vis, wdir, E):
+        """Beams from samples vis lit from directions wdir with irradiance E: refracted in through the outer
+        surface, then through transparent layers until a medium is reached."""
+        bpos, bdir = pos[vis].copy(), -wdir
+        bpow = E * area
         bmed = np.full(len(vis), -1, np.int64)
         bcos = np.zeros(len(vis))
         alive = np.ones(len(vis), np.bool_)
+        # (a hit at distance 0: the sample itself)
         _cross(bs.surfaces, bpos, bdir, bpow, bmed, bcos, nrm[vis], nrm[vis], np.zeros(len(vis)), sid[vis], eps,
                alive)
-        # through transparent layers until a medium is reached
         for _ in range(max_layers):
             walk = np.flatnonzero(alive & (bmed < 0))
             if len(walk) == 0:
@@ -223,9 +266,18 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
             bpos[walk], bdir[walk], bpow[walk], bmed[walk], bcos[walk], alive[walk] = p_, d_, w_, m_, c_, sub
         keep = alive & (bmed >= 0)
         beams.append((bpos[keep], bdir[keep], bpow[keep], bmed[keep], area * np.abs(bcos[keep])))
+
+    for li in range(len(bs.lights)):
+        wdir, dist, E = np.zeros((n, 3)), np.zeros(n), np.zeros((n, 3))
+        vis = _lit(caster, bs, li, pos, nrm, eps, seed, wdir, dist, E)
+        irr[vis] += E[vis]
+        enter(vis, wdir[vis], E[vis])
+    vis, wdir, E = _indirect(caster, bs, pos, nrm, eps, seed)
+    irr[vis] += E
+    enter(vis, wdir, E)
     bpos, bdir, bpow, bmed, barea = (np.concatenate([b[i] for b in beams]) for i in range(5))
     p_min = 1e-4 * bpow.max(axis=1) if len(bpow) else np.zeros(0)
-    out = {k: [] for k in ("start", "dir", "len", "power", "area", "medium")}
+    out = {k: [] for k in ("start", "dir", "len", "power", "area", "medium", "ends")}
     alive = np.ones(len(bpos), np.bool_)
     for _ in range(max_reflections + 1):
         act = np.flatnonzero(alive)
@@ -233,7 +285,8 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
             break
         t, s, ng, ns = closest_surface_hits(caster, bs, bpos[act], bdir[act])
         m = len(act) * segments
-        o = (np.zeros((m, 3)), np.zeros((m, 3)), np.zeros(m), np.zeros((m, 3)), np.zeros(m), np.zeros(m, np.int64))
+        o = (np.zeros((m, 3)), np.zeros((m, 3)), np.zeros(m), np.zeros((m, 3)), np.zeros(m), np.zeros(m, np.int64),
+             np.zeros(m, np.int64))
         p_, d_, w_, a_ = bpos[act], bdir[act], bpow[act], alive[act].copy()
         _segments(bs.media, bs.surfaces, p_, d_, w_, bmed[act], barea[act], t, s, ng, ns, eps, segments,
                   p_min[act], *o, a_)
@@ -245,4 +298,4 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
     cat = {k: (np.concatenate(v) if v else np.zeros((0, 3) if k in ("start", "dir", "power") else 0))
            for k, v in out.items()}
     return LightSamples(pos, nrm, sid, np.full(n, area), irr, cat["start"], cat["dir"], cat["len"], cat["power"],
-                        cat["area"], cat["medium"].astype(np.int64))
+                        cat["area"], cat["medium"].astype(np.int64), cat["ends"].astype(np.int64))

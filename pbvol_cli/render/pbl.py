@@ -25,7 +25,7 @@ from pbvol_cli.geometry.scene_build import DIELECTRIC, DIFFUSE, MIRROR, NULL, Bu
 from pbvol_cli.physics.fresnel import fresnel_dielectric, reflect, refract
 from pbvol_cli.physics.lights import ENVIRONMENT, emitted_toward, intersect_lights, light_sample
 from pbvol_cli.physics.sampling import cosine_hemisphere, rand, seed_state
-from pbvol_cli.pointbased.estimators import double_multiple, single_scattering
+from pbvol_cli.pointbased.estimators import END_EXTENSION, double_multiple, single_scattering
 from pbvol_cli.render.camera import generate_camera_rays
 from pbvol_cli.render.intersect import closest_surface_hits, light_hits, visible
 
@@ -36,7 +36,7 @@ COMPONENTS = ("single", "double", "multiple")
 def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse):
     """Medium contribution of ray i over [0, tseg[i]] into out[i, component, channel]. A ray after a diffuse bounce
     (diffuse[i] > 0) takes settings[7] random points for every component (sec. 3.6: averaged over the bounces)."""
-    tree, v_start, v_dir, v_len, v_power, v_area, v_centre, v_scat, v_rb, tabs = md
+    tree, v_start, v_dir, v_len, v_power, v_area, v_centre, v_scat, v_rb, tabs, v_ends = md
     sig_a, sig_s = med[0:3], med[3:6]
     kind, g = int(med[6]), med[7]
     kmax, cut_size, rclamp, k2 = int(settings[0]), int(settings[1]), settings[2], int(settings[6])
@@ -67,8 +67,8 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse):
             o[:] = 0.0
             o3[:] = 0.0
             if comp == 0:
-                single_scattering(tree, v_start, v_dir, v_len, v_power, v_area, sig_a, sig_s, kind, g, px, py, pz,
-                                  wx, wy, wz, o)
+                single_scattering(tree, v_start, v_dir, v_len, v_power, v_area, v_ends, sig_a, sig_s, kind, g, px,
+                                  py, pz, wx, wy, wz, o)
             else:
                 double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, sig_a, sig_s, kind, g,
                                 px, py, pz, wx, wy, wz, cut_size, rclamp, do_d, do_m, tabs, o, o3, rng, i)
@@ -246,9 +246,13 @@ class MediumData:
         self.centre = self.start + 0.5 * self.len[:, None] * self.dir
         rb = np.sqrt(self.area / np.pi)  # the kernel's radius: the boxes must hold it
         self.rb = rb / beam_width  # the beam's own radius: double scattering's 1/r^2 smoothing
-        end = self.start + self.len[:, None] * self.dir
-        box_lo = np.minimum(self.start, end) - rb[:, None]
-        box_hi = np.maximum(self.start, end) + rb[:, None]
+        self.ends = np.ascontiguousarray(samples.v_ends[sel])
+        # boxes hold the kernel disc along the segment, continued at the boundary (estimators.END_EXTENSION)
+        ext = END_EXTENSION * rb
+        first = self.start - (ext * (self.ends & 1 > 0))[:, None] * self.dir
+        end = self.start + (self.len + ext * (self.ends & 2 > 0))[:, None] * self.dir
+        box_lo = np.minimum(first, end) - rb[:, None]
+        box_hi = np.maximum(first, end) + rb[:, None]
         self.tree = build_octree(self.centre, box_lo, box_hi, self.dir, self.scat)
         # tables: MSTable objects, or their render_args() already expanded (shared by every pass's samples)
         self.tabs = tuple(t if isinstance(t, tuple) else t.render_args() for t in tables)
@@ -256,7 +260,7 @@ class MediumData:
 
     def kernel_tuple(self):
         return (self.tree.arrays(), self.start, self.dir, self.len, self.power, self.area, self.centre, self.scat,
-                self.rb, self.tabs)
+                self.rb, self.tabs, self.ends)
 
 
 def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, settings: dict, threads: int,

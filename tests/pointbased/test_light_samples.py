@@ -53,3 +53,25 @@ def test_refracting_sphere_beams_stay_inside_through_internal_reflections(tmp_pa
     beams = np.sum(ls.s_irradiance.sum(1) > 0)
     assert len(ls.v_start) > 8 * beams
     assert len(outer_layer_surfaces(bs)) == 1
+
+
+def test_surface_samples_receive_indirect_light_from_a_diffuse_floor(tmp_path):
+    """Light straight down on a sphere (radius 1) whose bottom is d = 2 above a floor of albedo rho: a sample at the
+    bottom sees only the floor, of radiance rho E / pi, except the sphere's own shadow (a disc of radius 1 right
+    below it, solid-angle-cosine fraction 1 / (1 + d^2)): irradiance rho E (1 - 1 / (1 + d^2)). Mean over the
+    samples near the bottom within 4 standard errors (one cosine-weighted direction per sample)."""
+    E, rho, d = 2.0, 0.6, 2.0
+    scene = {"camera": camera(), "lights": [{"type": "directional", "direction": [0, -1, 0], "irradiance": E}],
+             "shapes": [{"type": "sphere", "radius": 1.0, "center": [0, 0, 0], "interface": "null",
+                         "medium": {"sigma_a": 0.5, "sigma_s": 0.5}},
+                        {"type": "quad", "center": [0, -1.0 - d, 0], "size": [400.0, 400.0], "interface": "diffuse",
+                         "albedo": rho}]}
+    ls = place_light_samples(build(tmp_path, scene), 80000, 2, 0, 4, seed=3)
+    bottom = ls.s_nrm[:, 1] < -0.99
+    irr = ls.s_irradiance[bottom, 0]
+    assert bottom.sum() > 200
+    expected = rho * E * (1 - 1 / (1 + d * d))
+    se = irr.std() / np.sqrt(len(irr))
+    assert abs(irr.mean() - expected) < 4 * se, (irr.mean(), expected, se)
+    # and the indirect light enters as beams: power in from below the equator
+    assert ls.v_power[ls.v_dir[:, 1] > 0.5].sum() > 0
