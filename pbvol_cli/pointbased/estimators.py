@@ -270,25 +270,31 @@ def _importance(x, y, z, dx, dy, dz, align, power, ext2, px, py, pz, wx, wy, wz,
 @njit(cache=True)
 def _representative_importance(nd, tree, v_dir, v_len, v_centre, v_scat, v_rb, px, py, pz, wx, wy, wz, kind, g,
                                st_min, u):
-    """A sample of node nd drawn by descending with probabilities proportional to each child's _importance, then
-    among the leaf's samples proportionally to their own (a light tree, after Conty Estevez and Kulla 2018):
-    sources whose lobes point at P and whose P-side phase points at the camera are found far more often than
-    by power alone (g = 0.9: lobes 200x their mean). Returns (sample, 1 / its probability)."""
+    """A sample of node nd drawn by descending with probabilities half proportional to each child's _importance
+    and half to its power, then likewise among the leaf's samples (a light tree, after Conty Estevez and Kulla
+    2018, with a defensive mixture): sources whose lobes point at P and whose P-side phase points at the camera
+    are found far more often than by power alone (g = 0.9: lobes 200x their mean), and no sample's weight exceeds
+    twice its power-proportional one (importance alone, misjudged near P, made fireflies). Returns (sample,
+    1 / its probability)."""
     order, lo, hi, centre, dirsum, power = tree[0], tree[1], tree[2], tree[3], tree[4], tree[5]
     first_child, n_children, start, end = tree[6], tree[7], tree[8], tree[9]
     imp = np.empty(8)
+    pws = np.empty(8)
     prob = 1.0
     while first_child[nd] >= 0:
         f0, nc = first_child[nd], n_children[nd]
         total = 0.0
+        ptotal = 0.0
         for k in range(nc):
             ch = f0 + k
             pw = power[ch, 0] + power[ch, 1] + power[ch, 2]
+            pws[k] = max(pw, 0.0)
+            ptotal += pws[k]
+            imp[k] = 0.0
+            if pw <= 0.0:
+                continue
             sx, sy, sz = dirsum[ch, 0], dirsum[ch, 1], dirsum[ch, 2]
             sn = math.sqrt(sx * sx + sy * sy + sz * sz)
-            if pw <= 0.0:
-                imp[k] = 0.0
-                continue
             if sn > 0.0:
                 dx, dy, dz, a = sx / sn, sy / sn, sz / sn, min(1.0, sn / pw)
             else:
@@ -297,40 +303,55 @@ def _representative_importance(nd, tree, v_dir, v_len, v_centre, v_scat, v_rb, p
             imp[k] = _importance(centre[ch, 0], centre[ch, 1], centre[ch, 2], dx, dy, dz, a, pw,
                                  0.25 * (hx * hx + hy * hy + hz * hz), px, py, pz, wx, wy, wz, kind, g, st_min)
             total += imp[k]
-        if not total > 0.0:
+        if not ptotal > 0.0:
             return -1, 0.0
-        x = u * total
+        for k in range(nc):  # the mixture, in place
+            imp[k] = 0.5 * pws[k] / ptotal + (0.5 * imp[k] / total if total > 0.0 else 0.5 * pws[k] / ptotal)
         acc = 0.0
-        pick = nc - 1
+        pick = -1
         for k in range(nc):
-            if imp[k] > 0.0 and x < acc + imp[k]:
+            if imp[k] > 0.0:
                 pick = k
-                break
+                if u < acc + imp[k]:
+                    break
             acc += imp[k]
-        while imp[pick] <= 0.0:  # rounding at the end of the range
-            pick -= 1
-        u = min(max((x - acc) / imp[pick], 0.0), 1.0 - 1e-16) if pick < nc and x >= acc else 0.5
-        prob *= imp[pick] / total
+        acc = 0.0
+        for k in range(pick):
+            acc += imp[k]
+        u = min(max((u - acc) / imp[pick], 0.0), 1.0 - 1e-16)
+        prob *= imp[pick]
         nd = f0 + pick
     total = 0.0
+    ptotal = 0.0
     for k in range(start[nd], end[nd]):
         i = order[k]
+        pw = v_scat[i, 0] + v_scat[i, 1] + v_scat[i, 2]
+        ptotal += pw
         total += _importance(v_centre[i, 0], v_centre[i, 1], v_centre[i, 2], v_dir[i, 0], v_dir[i, 1], v_dir[i, 2],
-                             1.0, v_scat[i, 0] + v_scat[i, 1] + v_scat[i, 2],
-                             max(v_rb[i] ** 2, 0.25 * v_len[i] ** 2), px, py, pz, wx, wy, wz, kind, g, st_min)
-    if not total > 0.0:
+                             1.0, pw, max(v_rb[i] ** 2, 0.25 * v_len[i] ** 2), px, py, pz, wx, wy, wz, kind, g, st_min)
+    if not ptotal > 0.0:
         return -1, 0.0
-    x = u * total
     acc = 0.0
+    last = -1
+    last_w = 0.0
     for k in range(start[nd], end[nd]):
         i = order[k]
-        w = _importance(v_centre[i, 0], v_centre[i, 1], v_centre[i, 2], v_dir[i, 0], v_dir[i, 1], v_dir[i, 2], 1.0,
-                        v_scat[i, 0] + v_scat[i, 1] + v_scat[i, 2], max(v_rb[i] ** 2, 0.25 * v_len[i] ** 2),
-                        px, py, pz, wx, wy, wz, kind, g, st_min)
-        if w > 0.0 and (x < acc + w or k == end[nd] - 1):
-            return i, 1.0 / (prob * w / total)
+        pw = v_scat[i, 0] + v_scat[i, 1] + v_scat[i, 2]
+        w = 0.5 * pw / ptotal
+        if total > 0.0:
+            w += 0.5 * _importance(v_centre[i, 0], v_centre[i, 1], v_centre[i, 2], v_dir[i, 0], v_dir[i, 1],
+                                   v_dir[i, 2], 1.0, pw, max(v_rb[i] ** 2, 0.25 * v_len[i] ** 2), px, py, pz, wx, wy,
+                                   wz, kind, g, st_min) / total
+        else:
+            w += 0.5 * pw / ptotal
+        if w > 0.0:
+            last, last_w = i, w
+            if u < acc + w:
+                return i, 1.0 / (prob * w)
         acc += w
-    return -1, 0.0
+    if last < 0:
+        return -1, 0.0
+    return last, 1.0 / (prob * last_w)
 
 
 @njit(cache=True)
