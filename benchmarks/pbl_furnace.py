@@ -1,0 +1,43 @@
+#!/usr/bin/env python3
+"""Furnace check of the point-based method: a non-absorbing sphere (radius 1) under a white sky must render 1.
+
+    .venv/bin/python benchmarks/pbl_furnace.py
+
+Prints the mean over the central pixels and each layer, for an index-matched boundary and for eta = 1.5, at mean
+free paths 0.5 and 2. pbl does not pass it (the multiple-scattering table assumes an infinite medium; no bounced
+term): the numbers measure that bias. volpath passes it exactly (tests/render/test_volpath.py).
+"""
+
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))
+
+from conftest import camera, write_scene  # noqa: E402
+
+from pbvol_cli.imageio import read_exr, read_layers  # noqa: E402
+from pbvol_cli.pipeline.render import RenderOptions, render_scene  # noqa: E402
+
+
+def main():
+    tmp = Path(tempfile.mkdtemp(prefix="pbvol-furnace-"))
+    for eta in (1.0, 1.5):
+        for mfp in (0.5, 2.0):
+            shape = {"type": "sphere", "radius": 1.0, "interface": "null" if eta == 1.0 else "dielectric",
+                     "medium": {"albedo": 1.0, "mean_free_path": mfp, "g": 0.0}}
+            if eta != 1.0:
+                shape["eta"] = eta
+            scene = {"camera": camera((16, 16), position=(0, 0, 3.0), fov=30), "render": {"spp": 8},
+                     "lights": [{"type": "environment", "radiance": 1.0}], "shapes": [shape]}
+            p = write_scene(tmp, scene)
+            render_scene(p, tmp / "o.exr", RenderOptions(method="pbl", cache_dir=tmp, quiet=True))
+            layers, img = read_layers(tmp / "o.exr"), read_exr(tmp / "o.exr")[0]
+            c = slice(5, 11)
+            parts = ", ".join(f"{k} {float(v[c, c].mean()):.3f}" for k, v in layers.items())
+            print(f"eta {eta} mean free path {mfp}: centre {img[c, c].mean():.3f} ({parts})")
+
+
+if __name__ == "__main__":
+    main()
