@@ -104,15 +104,17 @@ def place_samples(
     from pbvol_cli import config as C
     from pbvol_cli.geometry.scene_build import build_scene
     from pbvol_cli.pipeline.cache import cache_dir as resolve_cache
-    from pbvol_cli.pipeline.render import peak_memory_mb, set_threads
+    from pbvol_cli.pipeline.render import peak_memory_mb, progress_bar, set_threads
     from pbvol_cli.pipeline.samples import get_light_samples
 
     try:
         n = set_threads(threads)
         sc = C.load_scene(scene)
         built = build_scene(sc, scene)
-        r = get_light_samples(built, sc.render.pbl, sc.render.seed if seed is None else seed, resolve_cache(cache_dir),
-                              n, force)
+        prog, update = progress_bar(False, "place-samples", "steps")
+        with prog:
+            r = get_light_samples(built, sc.render.pbl, sc.render.seed if seed is None else seed,
+                                  resolve_cache(cache_dir), n, force, update)
     except (PbvolError, OSError) as e:
         _fail(e)
     what = "reused cached samples" if r.reused else f"placed in {r.seconds:.2f} s"

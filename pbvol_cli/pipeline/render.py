@@ -57,13 +57,13 @@ def set_threads(threads: int | None) -> int:
     return n
 
 
-def _progress(quiet: bool, label: str):
+def progress_bar(quiet: bool, label: str, unit: str = "paths"):
     """A rich progress bar on stderr with ETA; returns (context manager, callback)."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     prog = Progress(
-        TextColumn(label), BarColumn(), MofNCompleteColumn(), TextColumn("paths"),
+        TextColumn(label), BarColumn(), MofNCompleteColumn(), TextColumn(unit),
         TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
         console=Console(stderr=True), disable=quiet, transient=False,
     )
@@ -114,7 +114,7 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
             orders_mask(opts.orders)
         except ValueError as e:
             raise PbvolError(f"--orders: {e}") from None
-        prog, update = _progress(opts.quiet, f"volpath {W}x{H} {spp} spp")
+        prog, update = progress_bar(opts.quiet, f"volpath {W}x{H} {spp} spp")
         with prog:
             img, spp_done, stats = render_volpath(
                 built, spp, seed, max_depth, rs.volpath.rr_depth, opts.orders, rs.volpath.batch_paths, threads,
@@ -137,6 +137,8 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
         "time_s": elapsed, "samples_per_second": W * H * spp_done / max(elapsed, 1e-9),
         "peak_memory_mb": peak_memory_mb(), "threads": threads,
     }
+    if stages:
+        summary["stages"] = stages
     if ref_img is not None:
         from pbvol_cli.pipeline.compare import image_metrics
 
@@ -165,9 +167,14 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
     stages = {}
     t0 = time.perf_counter()
     has_media = len(built.medium_info) > 0
-    res = get_light_samples(built, pbl, seed, cache, threads) if has_media else None  # surfaces only: no samples
+    res = None  # surfaces only: no samples
+    if has_media:
+        prog, update = progress_bar(opts.quiet, "place-samples", "steps")
+        with prog:
+            res = get_light_samples(built, pbl, seed, cache, threads, progress=update)
     stages["samples_s"] = time.perf_counter() - t0
     stages["samples_reused"] = float(res.reused) if res else 0.0
+    stages["samples_peak_mb"] = peak_memory_mb()
     t0 = time.perf_counter()
     media_tables = {}
     for m, info in enumerate(built.medium_info):
@@ -188,6 +195,7 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
             filler = empty_table()
         media_tables[m] = [(t or filler).render_args() for t in tables]  # expanded once for every pass
     stages["tables_s"] = time.perf_counter() - t0
+    stages["tables_peak_mb"] = peak_memory_mb()
     passes_samples_s = [0.0]
 
     def media_for_pass(p: int) -> dict:
@@ -208,7 +216,7 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
         return {m: MediumData(samples, m, built.media[m], media_tables[m], pbl.beam_width) for m in media_tables}
 
     W, H = int(built.camera[12]), int(built.camera[13])
-    prog, update = _progress(opts.quiet, f"pbl {W}x{H} {spp} spp")
+    prog, update = progress_bar(opts.quiet, f"pbl {W}x{H} {spp} spp")
     settings = {"kmax": pbl.kmax, "kmax_scattered": pbl.kmax_scattered, "cut_size": pbl.cut_size, "clamp": pbl.clamp,
                 "components": comps, "max_split_depth": pbl.max_split_depth, "roulette": pbl.roulette,
                 "diffuse_bounces": pbl.diffuse_bounces, "kmax_diffuse": pbl.kmax_diffuse}
@@ -224,6 +232,12 @@ def format_summary(s: dict) -> str:
     line = (f"{s['method']}: {s['resolution'][0]}x{s['resolution'][1]}, {s['spp']} spp in {s['time_s']:.2f} s "
             f"({s['samples_per_second'] / 1e6:.3f} M samples/s, {s['threads']} threads), "
             f"peak memory {s['peak_memory_mb']:.0f} MiB -> {s['output']}")
+    st = s.get("stages")
+    if st:
+        line += (f"\nstages: light samples {st['samples_s']:.2f} s"
+                 f"{' (cached)' if st.get('samples_reused') else ''}, peak {st['samples_peak_mb']:.0f} MiB; "
+                 f"tables {st['tables_s']:.2f} s, peak {st['tables_peak_mb']:.0f} MiB; camera pass {st['render_s']:.2f} s "
+                 f"(of which {st['pass_samples_s']:.2f} s new light samples per pass), peak {st['peak_memory_mb']:.0f} MiB")
     if "mse" in s:
         line += f"\nMSE against reference: {s['mse']:.6g} (relMSE {s['rel_mse']:.6g})"
     return line

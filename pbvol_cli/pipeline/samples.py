@@ -40,7 +40,8 @@ def samples_path(cache: Path, built, pbl: C.PblSettings, seed: int) -> Path:
     return Path(cache) / "samples" / f"light_samples_{key}.npz"
 
 
-def get_light_samples(built, pbl: C.PblSettings, seed: int, cache: Path, threads: int, force: bool = False):
+def get_light_samples(built, pbl: C.PblSettings, seed: int, cache: Path, threads: int, force: bool = False,
+                      progress=None):
     from pbvol_cli.pointbased.light_samples import LightSamples, place_light_samples
 
     t0 = time.perf_counter()
@@ -54,7 +55,7 @@ def get_light_samples(built, pbl: C.PblSettings, seed: int, cache: Path, threads
                 pass  # damaged: rebuild
     try:
         ls = place_light_samples(built, pbl.surface_samples, pbl.segments_per_beam, pbl.max_internal_reflections,
-                                 pbl.max_layers, seed, threads)
+                                 pbl.max_layers, seed, threads, progress)
     except ValueError as e:
         raise PbvolError(f"place-samples: {e}") from None
     save_npz_atomic(path, **ls.arrays())

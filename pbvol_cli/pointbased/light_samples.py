@@ -229,13 +229,23 @@ def _indirect(caster, bs, pos, nrm, eps, seed):
 
 
 def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max_reflections: int,
-                        max_layers: int, seed: int, threads: int = 2) -> LightSamples:
-    """Surface samples on every medium-holding object's outer layer, their beams and the volume samples."""
+                        max_layers: int, seed: int, threads: int = 2, progress=None) -> LightSamples:
+    """Surface samples on every medium-holding object's outer layer, their beams and the volume samples.
+    progress(done, total), if given, is called after each step (lights, indirect light, reflection passes)."""
+    steps = len(bs.lights) + 2 + max_reflections + 1
+    step = [0]
+
+    def advance():
+        step[0] += 1
+        if progress is not None:
+            progress(min(step[0], steps), steps)
+
     outer = outer_layer_surfaces(bs)
     if len(outer) == 0:
         raise ValueError("no medium-holding object with a transparent boundary to place light samples on")
     tri = np.isin(bs.tri_surface, outer)
     sph = bs.spheres[np.isin(bs.spheres[:, 4].astype(np.int64), outer)]
+    advance()
     pos, nrm, sid, area, _ = poisson_disk(bs.vertices, bs.faces[tri], bs.tri_normals[tri], bs.tri_surface[tri], sph,
                                           surface_samples, seed)
     n = len(pos)
@@ -272,9 +282,11 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
         vis = _lit(caster, bs, li, pos, nrm, eps, seed, wdir, dist, E)
         irr[vis] += E[vis]
         enter(vis, wdir[vis], E[vis])
+        advance()
     vis, wdir, E = _indirect(caster, bs, pos, nrm, eps, seed)
     irr[vis] += E
     enter(vis, wdir, E)
+    advance()
     bpos, bdir, bpow, bmed, barea = (np.concatenate([b[i] for b in beams]) for i in range(5))
     p_min = 1e-4 * bpow.max(axis=1) if len(bpow) else np.zeros(0)
     out = {k: [] for k in ("start", "dir", "len", "power", "area", "medium", "ends")}
@@ -294,7 +306,10 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
         valid = o[2] > 0
         for key, arr in zip(out, o):
             out[key].append(arr[valid])
+        advance()
     caster.close()
+    if progress is not None:
+        progress(steps, steps)
     cat = {k: (np.concatenate(v) if v else np.zeros((0, 3) if k in ("start", "dir", "power") else 0))
            for k, v in out.items()}
     return LightSamples(pos, nrm, sid, np.full(n, area), irr, cat["start"], cat["dir"], cat["len"], cat["power"],

@@ -142,6 +142,7 @@ def test_place_samples_caches_and_render_writes_component_layers(tmp_path):
     assert np.allclose(img, sum(layers.values()), rtol=1e-5, atol=1e-7)
     assert layers["single"].sum() > 0 and layers["double"].sum() > 0 and layers["multiple"].sum() == 0
     assert meta["method"] == "pbl" and meta["stage_samples_reused"] == 1.0 and "stage_render_s" in meta
+    assert "stages: light samples" in r.stdout and "camera pass" in r.stdout  # each stage's time and memory
     bad = runner.invoke(app, ["render", str(path), "--method", "pbl", "-o", str(out), "--components", "triple",
                               "--cache-dir", str(tmp_path / "c")])
     assert bad.exit_code == 1 and "--components" in bad.stderr and "\n" not in bad.stderr.strip()
