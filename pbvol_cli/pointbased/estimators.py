@@ -4,15 +4,14 @@ All three are S(P, w_c) in W m^-3 sr^-1, per RGB channel, for the medium holding
 toward the camera. Volume sample v: segment start s_v, direction d_v, length l_v, beam power Phi_v at its start,
 cross-section A_v (kernel 1/A_v), scattered power Phi_v^s = Phi_v sigma_s/sigma_t (1 - exp(-sigma_t l_v)).
 - single:   sigma_s p(d_v . w_c) Phi_v exp(-sigma_t t) / A_v, for the beams whose cross-section holds P
-            (t = (P - s_v) . d_v in [0, l_v]): the photon-beam estimate the paper's box average approximates.
-- double:   sigma_s p(m . w_c) Phi^s p(d . m) exp(-sigma_t r) <1/r^2> over a tree cut, m = (P - x)/r, where <1/r^2>
-            averages 1/r^2 over a ball of the source's extent (inv_r2_ball) rather than clamping it.
-- multiple: Phi^s sigma_t^3 S_table(sigma_t (P - x), w_c) in the frame of (x, d), over the same cut.
-The cut keeps a node when (solid angle of its box from P) x 4 pi p(m . w_c) < tau, and never a node whose box holds P.
-A kept node's samples may point different ways (beams from an environment, internal reflections): with alignment
-a = |sum of power-weighted directions| / total weight, their phase lobes are replaced by a p(d_mean . m) + (1 - a)/(4 pi),
-normalised and with the mixture's first moment a g (exact when the beams are parallel); the table look-up for
-multiple scattering uses the mean direction.
+            (t = (P - s_v) . d_v in [0, l_v], continued at the boundary): the photon-beam estimate the paper's box
+            average approximates.
+- double:   sigma_s p(m . w_c) Phi^s p(d . m) exp(-sigma_t r) <1/r^2>, m = (P - x)/r, where <1/r^2> averages 1/r^2
+            over a ball of the source's extent (inv_r2_ball) rather than clamping it; segments near P are split.
+- multiple: Phi^s sigma_t^3 S_table(sigma_t (P - x), w_c) in the frame of (x, d).
+Double and multiple sum over all volume samples by a stochastic light cut (double_multiple): a few nodes of the
+octree, each represented by one sample drawn at random and weighted by its inverse probability, so the sum is
+unbiased whatever the cut; the cut only sets the noise.
 """
 
 from __future__ import annotations

@@ -5,10 +5,12 @@ branch are both followed, weighted by Fresnel (F and (1 - F) (eta_i/eta_t)^2), u
 carries no noise from choosing between them. Each segment a path travels inside a medium (length d_max) gets k_max
 points at stratified depths d_k = -log(1 - u_k (1 - exp(-s d_max))) / s (s: the smallest sigma_t of the medium,
 u_k = (k + xi)/k_max), weighted per channel by exp(-sigma_t d_k) / pdf(d_k); the in-scattered radiance at each
-point comes from the light samples (estimators.py). Diffuse surfaces receive direct light (next-event estimation);
-emitters and the environment seen through specular chains add their radiance.
+point comes from the light samples (estimators.py). Branches of small weight evaluate the medium by Russian
+roulette. Diffuse surfaces take one shadow ray per light and continue by cosine-sampled bounces (indirect light);
+emitters and the environment seen directly or through specular chains add their radiance (see _interact for when
+a shadow ray has already counted them).
 
-Not yet: indirect light on diffuse surfaces and the bounced component (eq. 7).
+Not yet: the bounced component (eq. 7).
 """
 
 from __future__ import annotations
