@@ -48,7 +48,7 @@ def render(
     resolution: Annotated[Optional[str], typer.Option(help="WIDTHxHEIGHT (overrides the scene)")] = None,
     orders: Annotated[Optional[str], typer.Option(help="keep only paths with these numbers of volume scattering events: 0, 1, 2, 3+, or a comma list")] = None,
     max_depth: Annotated[Optional[int], typer.Option(min=1, help="maximum path depth (overrides the scene)")] = None,
-    components: Annotated[Optional[str], typer.Option(help="pbl: comma list of single, double, multiple")] = None,
+    components: Annotated[Optional[str], typer.Option(help="pbl: comma list of single, double, multiple, bounced")] = None,
     preview: Annotated[Optional[Path], typer.Option(help="also write a tone-mapped sRGB PNG here")] = None,
     exposure: Annotated[float, typer.Option(help="preview exposure in stops")] = 0.0,
     reference: Annotated[Optional[Path], typer.Option(help="print the MSE against this image at the end")] = None,

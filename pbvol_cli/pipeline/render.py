@@ -8,6 +8,7 @@ import os
 import resource
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -183,7 +184,7 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
         tables = []
         for c in range(3):
             alpha = float(built.media[m, 3 + c] / st[c]) if st[c] > 0 else 0.0
-            if "multiple" in comps and st[c] > 0:
+            if ("multiple" in comps or "bounced" in comps) and st[c] > 0:
                 tables.append(get_table(round(alpha, 12), info.material.g, kind, scene.render.lut.table_settings(),
                                         cache).table)
             else:
@@ -196,7 +197,7 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
         media_tables[m] = [(t or filler).render_args() for t in tables]  # expanded once for every pass
     stages["tables_s"] = time.perf_counter() - t0
     stages["tables_peak_mb"] = peak_memory_mb()
-    passes_samples_s = [0.0]
+    passes_samples_s = [0.0, 0.0]  # light samples of passes > 0, bounced samples
 
     def media_for_pass(p: int) -> dict:
         """Pass p's light samples: the cached set for pass 0, a fresh set (seed + p, not cached) for the others,
@@ -213,7 +214,32 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
             passes_samples_s[0] += time.perf_counter() - t
         elif p > 0 and pbl.light_sets > 1:
             return media_for_pass(p % pbl.light_sets)
-        return {m: MediumData(samples, m, built.media[m], media_tables[m], pbl.beam_width) for m in media_tables}
+        data = {m: MediumData(samples, m, built.media[m], media_tables[m], pbl.beam_width) for m in media_tables}
+        t = time.perf_counter()
+        bounced = {m: _bounced(m, data[m], seed + p) for m in data}
+        passes_samples_s[1] += time.perf_counter() - t
+        return {m: (data[m], bounced[m]) for m in data}
+
+    def _bounced(m, md, s):
+        """The bounced samples of medium m (pointbased/bounced.py), or None."""
+        if "bounced" not in comps or pbl.bounce_generations == 0 or md.count == 0:
+            return None
+        from pbvol_cli.geometry.raycast import TriangleCaster
+        from pbvol_cli.pointbased.bounced import bounced_samples
+
+        gather = np.array([pbl.kmax, pbl.cut_size, pbl.clamp, 1.0, 1.0, 1.0, pbl.kmax_scattered, pbl.kmax_diffuse])
+        caster = TriangleCaster(built.vertices, built.faces, threads)
+        pool = ThreadPoolExecutor(threads) if threads > 1 else None
+        try:
+            b = bounced_samples(built, caster, pool, threads, m, md,
+                                lambda smp: MediumData(smp, m, built.media[m], media_tables[m], pbl.beam_width),
+                                pbl.bounce_samples, pbl.bounce_generations, pbl.segments_per_beam,
+                                pbl.max_internal_reflections, gather, s)
+        finally:
+            caster.close()
+            if pool is not None:
+                pool.shutdown()
+        return None if b is None else MediumData(b, m, built.media[m], media_tables[m], pbl.beam_width)
 
     W, H = int(built.camera[12]), int(built.camera[13])
     prog, update = progress_bar(opts.quiet, f"pbl {W}x{H} {spp} spp")
@@ -224,6 +250,7 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
         img, layers, stats = render_pbl(built, media_for_pass, spp, seed, settings, threads, update)
     stages["render_s"] = stats["time_s"]
     stages["pass_samples_s"] = passes_samples_s[0]
+    stages["bounced_s"] = passes_samples_s[1]
     stages["peak_memory_mb"] = peak_memory_mb()
     return img, layers, stats, stages
 
@@ -237,7 +264,8 @@ def format_summary(s: dict) -> str:
         line += (f"\nstages: light samples {st['samples_s']:.2f} s"
                  f"{' (cached)' if st.get('samples_reused') else ''}, peak {st['samples_peak_mb']:.0f} MiB; "
                  f"tables {st['tables_s']:.2f} s, peak {st['tables_peak_mb']:.0f} MiB; camera pass {st['render_s']:.2f} s "
-                 f"(of which {st['pass_samples_s']:.2f} s new light samples per pass), peak {st['peak_memory_mb']:.0f} MiB")
+                 f"(of which {st['pass_samples_s']:.2f} s new light samples per pass, "
+                 f"{st.get('bounced_s', 0.0):.2f} s bounced samples), peak {st['peak_memory_mb']:.0f} MiB")
     if "mse" in s:
         line += f"\nMSE against reference: {s['mse']:.6g} (relMSE {s['rel_mse']:.6g})"
     return line

@@ -87,9 +87,10 @@ def inv_r2_ball(r, c):
 
 @njit(cache=True)
 def _source(x, y, z, dx, dy, dz, Pr, Pg, Pb, px, py, pz, wx, wy, wz, sig_a, sig_s, kind, g, rclamp,
-            do_double, do_multiple, tabs, out_d, out_m, align=1.0):
-    """Double and multiple scattering at P from a point source of scattered power (Pr, Pg, Pb) along d (mean
-    direction of a node with alignment `align`: its lobe is blended toward isotropic, see the module doc)."""
+            do_double, do_multiple, tabs, out_d, out_m, nx, ny, nz, q):
+    """Double and multiple scattering at P from a point source of scattered power (Pr, Pg, Pb) along d; (n, q):
+    the boundary plane n . x = q nearest the source (n toward it; q = inf: none), for the multiple term's image."""
+    align = 1.0
     rx, ry, rz = px - x, py - y, pz - z
     r2 = rx * rx + ry * ry + rz * rz
     r = math.sqrt(r2)
@@ -101,9 +102,20 @@ def _source(x, y, z, dx, dy, dz, Pr, Pg, Pb, px, py, pz, wx, wy, wz, sig_a, sig_
         out_d[1] += sig_s[1] * Pg * f * math.exp(-(sig_a[1] + sig_s[1]) * r)
         out_d[2] += sig_s[2] * Pb * f * math.exp(-(sig_a[2] + sig_s[2]) * r)
     if do_multiple:
-        out_m[0] += scaled_lookup(tabs[0], Pr, sig_a[0] + sig_s[0], rx, ry, rz, dx, dy, dz, wx, wy, wz)
-        out_m[1] += scaled_lookup(tabs[1], Pg, sig_a[1] + sig_s[1], rx, ry, rz, dx, dy, dz, wx, wy, wz)
-        out_m[2] += scaled_lookup(tabs[2], Pb, sig_a[2] + sig_s[2], rx, ry, rz, dx, dy, dz, wx, wy, wz)
+        # the table's infinite medium, less a mirror-image source (mirrored lobe) behind the boundary plane: the
+        # light that in the infinite medium would cross the boundary and scatter back (method of images with the
+        # image plane on the boundary; light the boundary reflects is the bounced term's)
+        image = q < np.inf
+        h = 2.0 * max(q - (nx * x + ny * y + nz * z), 0.0) if image else 0.0
+        dn = 2.0 * (dx * nx + dy * ny + dz * nz)
+        ex, ey, ez = dx - dn * nx, dy - dn * ny, dz - dn * nz
+        for c in range(3):
+            Pc = Pr if c == 0 else (Pg if c == 1 else Pb)
+            st = sig_a[c] + sig_s[c]
+            v = scaled_lookup(tabs[c], Pc, st, rx, ry, rz, dx, dy, dz, wx, wy, wz)
+            if image:
+                v -= scaled_lookup(tabs[c], Pc, st, rx - h * nx, ry - h * ny, rz - h * nz, ex, ey, ez, wx, wy, wz)
+            out_m[c] += v
 
 
 NEAR_SUB = 8  # sub-points along a segment that is close to P (double scattering)
@@ -111,7 +123,7 @@ MS_CELL = 0.1  # mean free paths: segments longer than this are split for the mu
 
 
 @njit(cache=True)
-def _segment_source(i, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, sig_a, sig_s, kind, g, px, py, pz,
+def _segment_source(i, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz,
                     wx, wy, wz, rclamp, do_double, do_multiple, tabs, out_d, out_m):
     """A volume sample as a source. Double scattering: one point far from P; near P (closer than two segment
     lengths) NEAR_SUB points along the segment, each with its exact share sigma_s/sigma_t (e^-st t0 - e^-st t1) of
@@ -126,29 +138,31 @@ def _segment_source(i, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, s
         if n_ms <= 1:
             _source(v_centre[i, 0], v_centre[i, 1], v_centre[i, 2], v_dir[i, 0], v_dir[i, 1], v_dir[i, 2],
                     v_scat[i, 0], v_scat[i, 1], v_scat[i, 2], px, py, pz, wx, wy, wz, sig_a, sig_s, kind, g,
-                    max(rclamp, max(0.5 * ln, v_rb[i])), do_double and far, do_multiple, tabs, out_d, out_m)
+                    max(rclamp, max(0.5 * ln, v_rb[i])), do_double and far, do_multiple, tabs, out_d, out_m, v_plane[i, 0],
+                    v_plane[i, 1], v_plane[i, 2], v_plane[i, 3])
             return
         if far and do_double:
             _source(v_centre[i, 0], v_centre[i, 1], v_centre[i, 2], v_dir[i, 0], v_dir[i, 1], v_dir[i, 2],
                     v_scat[i, 0], v_scat[i, 1], v_scat[i, 2], px, py, pz, wx, wy, wz, sig_a, sig_s, kind, g,
-                    max(rclamp, max(0.5 * ln, v_rb[i])), True, False, tabs, out_d, out_m)
-        _split_source(i, n_ms, v_start, v_dir, v_len, v_power, v_rb, sig_a, sig_s, kind, g, px, py, pz, wx, wy, wz,
+                    max(rclamp, max(0.5 * ln, v_rb[i])), True, False, tabs, out_d, out_m, v_plane[i, 0],
+                    v_plane[i, 1], v_plane[i, 2], v_plane[i, 3])
+        _split_source(i, n_ms, v_start, v_dir, v_len, v_power, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz, wx, wy, wz,
                       rclamp, False, True, tabs, out_d, out_m)
         return
     # near, double wanted
     if n_ms == NEAR_SUB:
-        _split_source(i, NEAR_SUB, v_start, v_dir, v_len, v_power, v_rb, sig_a, sig_s, kind, g, px, py, pz, wx, wy,
+        _split_source(i, NEAR_SUB, v_start, v_dir, v_len, v_power, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz, wx, wy,
                       wz, rclamp, True, do_multiple, tabs, out_d, out_m)
         return
-    _split_source(i, NEAR_SUB, v_start, v_dir, v_len, v_power, v_rb, sig_a, sig_s, kind, g, px, py, pz, wx, wy, wz,
+    _split_source(i, NEAR_SUB, v_start, v_dir, v_len, v_power, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz, wx, wy, wz,
                   rclamp, True, False, tabs, out_d, out_m)
     if n_ms > 0:
-        _split_source(i, n_ms, v_start, v_dir, v_len, v_power, v_rb, sig_a, sig_s, kind, g, px, py, pz, wx, wy, wz,
+        _split_source(i, n_ms, v_start, v_dir, v_len, v_power, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz, wx, wy, wz,
                       rclamp, False, True, tabs, out_d, out_m)
 
 
 @njit(cache=True)
-def _split_source(i, n, v_start, v_dir, v_len, v_power, v_rb, sig_a, sig_s, kind, g, px, py, pz, wx, wy, wz, rclamp,
+def _split_source(i, n, v_start, v_dir, v_len, v_power, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz, wx, wy, wz, rclamp,
                   do_double, do_multiple, tabs, out_d, out_m):
     """Segment i as n point sources at the midpoints of equal sub-segments, each with its exact share of the power
     scattered, sigma_s/sigma_t (e^-st t0 - e^-st t1) times the power entering the segment."""
@@ -162,7 +176,8 @@ def _split_source(i, n, v_start, v_dir, v_len, v_power, v_rb, sig_a, sig_s, kind
         tm = 0.5 * (t0 + t1)
         _source(v_start[i, 0] + tm * v_dir[i, 0], v_start[i, 1] + tm * v_dir[i, 1], v_start[i, 2] + tm * v_dir[i, 2],
                 v_dir[i, 0], v_dir[i, 1], v_dir[i, 2], pw[0], pw[1], pw[2], px, py, pz, wx, wy, wz, sig_a, sig_s,
-                kind, g, max(rclamp, max(0.5 * (t1 - t0), v_rb[i])), do_double, do_multiple, tabs, out_d, out_m)
+                kind, g, max(rclamp, max(0.5 * (t1 - t0), v_rb[i])), do_double, do_multiple, tabs, out_d, out_m, v_plane[i, 0],
+                    v_plane[i, 1], v_plane[i, 2], v_plane[i, 3])
 
 
 CUT_CAP = 4096  # nodes a cut may hold at once (a node that would overflow it is used as it is)
@@ -267,7 +282,7 @@ def _importance(x, y, z, dx, dy, dz, align, power, ext2, px, py, pz, wx, wy, wz,
 
 
 @njit(cache=True)
-def _representative_importance(nd, tree, v_dir, v_len, v_centre, v_scat, v_rb, px, py, pz, wx, wy, wz, kind, g,
+def _representative_importance(nd, tree, v_dir, v_len, v_centre, v_scat, v_rb, v_plane, px, py, pz, wx, wy, wz, kind, g,
                                st_min, u):
     """A sample of node nd drawn by descending with probabilities half proportional to each child's _importance
     and half to its power, then likewise among the leaf's samples (a light tree, after Conty Estevez and Kulla
@@ -354,7 +369,7 @@ def _representative_importance(nd, tree, v_dir, v_len, v_centre, v_scat, v_rb, p
 
 
 @njit(cache=True)
-def _cut_estimate(heap, hn, node_of, tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, sig_a, sig_s, kind,
+def _cut_estimate(heap, hn, node_of, tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a, sig_s, kind,
                   g, px, py, pz, wx, wy, wz, rclamp, do_double, do_multiple, tabs, out_d, out_m, rng, ri):
     """Each node of the cut contributes one representative sample, weighted by 1 / its probability (unbiased for
     the node's sum): drawn by importance toward P when double scattering is wanted, else by scattered power.
@@ -370,7 +385,7 @@ def _cut_estimate(heap, hn, node_of, tree, v_start, v_dir, v_len, v_power, v_cen
         if power[nd, 0] + power[nd, 1] + power[nd, 2] <= 0.0:
             continue
         if do_double:  # importance toward P (see _representative_importance); multiple alone: by power
-            i, scale = _representative_importance(nd, tree, v_dir, v_len, v_centre, v_scat, v_rb, px, py, pz, wx,
+            i, scale = _representative_importance(nd, tree, v_dir, v_len, v_centre, v_scat, v_rb, v_plane, px, py, pz, wx,
                                                   wy, wz, kind, g, st_min, rand(rng, ri))
             if i < 0:
                 continue
@@ -380,7 +395,7 @@ def _cut_estimate(heap, hn, node_of, tree, v_start, v_dir, v_len, v_power, v_cen
         for c in range(3):
             od[c] = 0.0
             om[c] = 0.0
-        _segment_source(i, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, sig_a, sig_s, kind, g, px, py, pz,
+        _segment_source(i, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz,
                         wx, wy, wz, rclamp, do_double, do_multiple, tabs, od, om)
         n += 1
         for c in range(3):
@@ -393,7 +408,7 @@ MULTIPLE_CUT_SHARE = 4  # multiple scattering (smooth) uses the cut after cut_si
 
 
 @njit(cache=True)
-def double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, sig_a, sig_s, kind, g,
+def double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a, sig_s, kind, g,
                     px, py, pz, wx, wy, wz, cut_size, rclamp, do_double, do_multiple, tabs, out_d, out_m, rng, ri):
     """Double and multiple scattering at P by a stochastic light cut (after Yuksel 2019, "Stochastic Lightcuts"):
     the cut is made by refining cut_size times the node of highest priority (power x solid angle x transmittance:
@@ -421,7 +436,7 @@ def double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb
     ms_pending = do_multiple
     while hn > 0:
         if ms_pending and n_refined >= ms_cut:
-            n_eval += _cut_estimate(heap, hn, node_of, tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb,
+            n_eval += _cut_estimate(heap, hn, node_of, tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane,
                                     sig_a, sig_s, kind, g, px, py, pz, wx, wy, wz, rclamp, False, True, tabs,
                                     out_d, out_m, rng, ri)
             ms_pending = False
@@ -438,7 +453,7 @@ def double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb
         if first_child[nd] < 0:  # a leaf: its samples exactly
             n_eval += end[nd] - start[nd]
             for k in range(start[nd], end[nd]):
-                _segment_source(order[k], v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, sig_a, sig_s, kind,
+                _segment_source(order[k], v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a, sig_s, kind,
                                 g, px, py, pz, wx, wy, wz, rclamp, do_double, ms_pending, tabs, out_d, out_m)
             continue
         for ch in range(first_child[nd], first_child[nd] + n_children[nd]):
@@ -451,7 +466,7 @@ def double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb
             node_of[e] = ch
             key[e] = _node_priority(ch, lo, hi, power, px, py, pz, st_min)
             hn = _heap_push(heap, hn, key, e)
-    n_eval += _cut_estimate(heap, hn, node_of, tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, sig_a,
+    n_eval += _cut_estimate(heap, hn, node_of, tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a,
                             sig_s, kind, g, px, py, pz, wx, wy, wz, rclamp, do_double, ms_pending, tabs, out_d, out_m,
                             rng, ri)
     return n_eval

@@ -41,9 +41,10 @@ class LightSamples:
     v_area: np.ndarray  # (m,) beam cross-section
     v_medium: np.ndarray  # (m,) medium ids
     v_ends: np.ndarray  # (m,) 1: the segment starts on the boundary, 2: it ends there (both: 3)
+    v_plane: np.ndarray  # (m, 4) nearest boundary tangent plane (n, q): n . x = q, n pointing from the segment
 
     FIELDS = ("s_pos", "s_nrm", "s_surface", "s_area", "s_irradiance", "v_start", "v_dir", "v_len", "v_power",
-              "v_area", "v_medium", "v_ends")
+              "v_area", "v_medium", "v_ends", "v_plane")
 
     def arrays(self) -> dict:
         return {k: getattr(self, k) for k in self.FIELDS}
@@ -54,7 +55,7 @@ class LightSamples:
         n, m = len(ls.s_pos), len(ls.v_start)
         shapes_ok = (ls.s_nrm.shape == (n, 3) and ls.s_irradiance.shape == (n, 3) and ls.v_dir.shape == (m, 3)
                      and ls.v_power.shape == (m, 3) and len(ls.v_len) == m and len(ls.v_area) == m
-                     and len(ls.v_ends) == m)
+                     and len(ls.v_ends) == m and ls.v_plane.shape == (m, 4))
         if not shapes_ok or not all(np.all(np.isfinite(getattr(ls, k))) for k in ("v_start", "v_power", "v_len")):
             raise ValueError("inconsistent light samples")
         return ls
@@ -105,8 +106,9 @@ def _interface(surfaces, s, d, ng, ns, k):
 
 
 @njit(parallel=True, cache=True)
-def _cross(surfaces, pos, d, power, medium, cosx, ng, ns, t, surf, eps, alive):
-    """Move each beam to its hit and transmit it through the interface (Fresnel T); kill on anything else."""
+def _cross(surfaces, pos, d, power, medium, cosx, ng, ns, t, surf, eps, alive, bn):
+    """Move each beam to its hit and transmit it through the interface (Fresnel T); kill on anything else.
+    bn: the geometric normal where it crossed (the medium's boundary plane at the beam's start)."""
     for k in prange(pos.shape[0]):
         if not alive[k]:
             continue
@@ -124,16 +126,18 @@ def _cross(surfaces, pos, d, power, medium, cosx, ng, ns, t, surf, eps, alive):
             power[k, c] *= 1.0 - F
             pos[k, c] = pos[k, c] + t[k] * d[k, c] - eps * (gx if c == 0 else (gy if c == 1 else gz))
         d[k, 0], d[k, 1], d[k, 2] = wx, wy, wz
+        bn[k, 0], bn[k, 1], bn[k, 2] = gx, gy, gz
         medium[k] = int(surfaces[s, 1]) if entering else int(surfaces[s, 2])
         cosx[k] = cos_t
 
 
 @njit(parallel=True, cache=True)
-def _segments(media, surfaces, pos, d, power, medium, area, t, surf, ng, ns, eps, nseg, p_min,
-              o_start, o_dir, o_len, o_power, o_area, o_medium, o_ends, alive):
+def _segments(media, surfaces, pos, d, power, medium, area, t, surf, ng, ns, eps, nseg, p_min, bn,
+              o_start, o_dir, o_len, o_power, o_area, o_medium, o_ends, o_plane, alive):
     """Cut each beam's path to the boundary into nseg volume samples (equal fractions of 1 - exp(-sigma t) in the
     most penetrating channel), then reflect it internally (Fresnel F) or end it. o_ends marks the segments that
-    start (1) or end (2) on the boundary."""
+    start (1) or end (2) on the boundary; o_plane is the nearer of the boundary's tangent planes where the beam
+    starts (normal bn) and ends, as (n, q) with n . x = q on it and n pointing from the segment to it."""
     for k in prange(pos.shape[0]):
         base = k * nseg
         m = medium[k]
@@ -162,6 +166,20 @@ def _segments(media, surfaces, pos, d, power, medium, area, t, surf, ng, ns, eps
             o_area[i] = area[k]
             o_medium[i] = m
             o_ends[i] = (1 if q == 0 else 0) | (2 if q == nseg - 1 else 0)
+            # nearest of the two tangent planes, from the segment's centre
+            tc = 0.5 * (t0 + t1)
+            cs = d[k, 0] * bn[k, 0] + d[k, 1] * bn[k, 1] + d[k, 2] * bn[k, 2]
+            ce = d[k, 0] * ng[k, 0] + d[k, 1] * ng[k, 1] + d[k, 2] * ng[k, 2]
+            hs, he = tc * abs(cs), (tex - tc) * abs(ce)
+            if hs <= he:  # the start plane lies behind: normal -d-ward
+                sg = -1.0 if cs > 0.0 else 1.0
+                nx, ny, nz, h = sg * bn[k, 0], sg * bn[k, 1], sg * bn[k, 2], hs
+            else:
+                sg = 1.0 if ce > 0.0 else -1.0
+                nx, ny, nz, h = sg * ng[k, 0], sg * ng[k, 1], sg * ng[k, 2], he
+            cx, cy, cz = pos[k, 0] + tc * d[k, 0], pos[k, 1] + tc * d[k, 1], pos[k, 2] + tc * d[k, 2]
+            o_plane[i, 0], o_plane[i, 1], o_plane[i, 2] = nx, ny, nz
+            o_plane[i, 3] = nx * cx + ny * cy + nz * cz + h
             t0 = t1
         # internal reflection at the exit
         s = surf[k]
@@ -170,6 +188,7 @@ def _segments(media, surfaces, pos, d, power, medium, area, t, surf, ng, ns, eps
             continue
         dx, dy, dz = d[k, 0], d[k, 1], d[k, 2]
         entering, nx, ny, nz, gx, gy, gz, eta_i, eta_t, cos_i, F, _ = _interface(surfaces, s, d, ng, ns, k)
+        bn[k, 0], bn[k, 1], bn[k, 2] = ng[k, 0], ng[k, 1], ng[k, 2]
         pmax = 0.0
         for c in range(3):
             power[k, c] *= math.exp(-(media[m, c] + media[m, 3 + c]) * tex) * F
@@ -228,6 +247,39 @@ def _indirect(caster, bs, pos, nrm, eps, seed):
     return hit[keep], wdir[hit[keep]], E_in[keep]
 
 
+def beam_segments(caster, bs: BuiltScene, bpos, bdir, bpow, bmed, barea, bnrm, segments: int, max_reflections: int,
+                  advance=None) -> dict:
+    """Volume samples along beams (start, direction, power at the start in W, medium, cross-section, boundary
+    normal at the start) followed through internal reflections until their power falls below 1e-4 of the
+    strongest beam's. Returns the arrays {start, dir, len, power, area, medium, ends, plane}; the beam arrays are
+    consumed."""
+    p_min = 1e-4 * bpow.max(axis=1) if len(bpow) else np.zeros(0)
+    out = {k: [] for k in ("start", "dir", "len", "power", "area", "medium", "ends", "plane")}
+    alive = np.ones(len(bpos), np.bool_)
+    for _ in range(max_reflections + 1):
+        act = np.flatnonzero(alive)
+        if len(act) == 0:
+            break
+        t, s, ng, ns = closest_surface_hits(caster, bs, bpos[act], bdir[act])
+        m = len(act) * segments
+        o = (np.zeros((m, 3)), np.zeros((m, 3)), np.zeros(m), np.zeros((m, 3)), np.zeros(m), np.zeros(m, np.int64),
+             np.zeros(m, np.int64), np.zeros((m, 4)))
+        p_, d_, w_, n_, a_ = bpos[act], bdir[act], bpow[act], bnrm[act], alive[act].copy()
+        _segments(bs.media, bs.surfaces, p_, d_, w_, bmed[act], barea[act], t, s, ng, ns, bs.eps, segments,
+                  p_min[act], n_, *o, a_)
+        bpos[act], bdir[act], bpow[act], bnrm[act], alive[act] = p_, d_, w_, n_, a_
+        valid = o[2] > 0
+        for key, arr in zip(out, o):
+            out[key].append(arr[valid])
+        if advance is not None:
+            advance()
+    empty = {"start": (0, 3), "dir": (0, 3), "power": (0, 3), "plane": (0, 4)}
+    cat = {k: (np.concatenate(v) if v else np.zeros(empty.get(k, 0))) for k, v in out.items()}
+    cat["medium"] = cat["medium"].astype(np.int64)
+    cat["ends"] = cat["ends"].astype(np.int64)
+    return cat
+
+
 def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max_reflections: int,
                         max_layers: int, seed: int, threads: int = 2, progress=None) -> LightSamples:
     """Surface samples on every medium-holding object's outer layer, their beams and the volume samples.
@@ -261,21 +313,22 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
         bpow = E * area
         bmed = np.full(len(vis), -1, np.int64)
         bcos = np.zeros(len(vis))
+        bn = np.zeros((len(vis), 3))
         alive = np.ones(len(vis), np.bool_)
         # (a hit at distance 0: the sample itself)
         _cross(bs.surfaces, bpos, bdir, bpow, bmed, bcos, nrm[vis], nrm[vis], np.zeros(len(vis)), sid[vis], eps,
-               alive)
+               alive, bn)
         for _ in range(max_layers):
             walk = np.flatnonzero(alive & (bmed < 0))
             if len(walk) == 0:
                 break
             t, s, ng, ns = closest_surface_hits(caster, bs, bpos[walk], bdir[walk])
             sub = alive[walk].copy()
-            p_, d_, w_, m_, c_ = bpos[walk], bdir[walk], bpow[walk], bmed[walk], bcos[walk]
-            _cross(bs.surfaces, p_, d_, w_, m_, c_, ng, ns, t, s, eps, sub)
-            bpos[walk], bdir[walk], bpow[walk], bmed[walk], bcos[walk], alive[walk] = p_, d_, w_, m_, c_, sub
+            p_, d_, w_, m_, c_, n_ = bpos[walk], bdir[walk], bpow[walk], bmed[walk], bcos[walk], bn[walk]
+            _cross(bs.surfaces, p_, d_, w_, m_, c_, ng, ns, t, s, eps, sub, n_)
+            bpos[walk], bdir[walk], bpow[walk], bmed[walk], bcos[walk], alive[walk], bn[walk] = p_, d_, w_, m_, c_, sub, n_
         keep = alive & (bmed >= 0)
-        beams.append((bpos[keep], bdir[keep], bpow[keep], bmed[keep], area * np.abs(bcos[keep])))
+        beams.append((bpos[keep], bdir[keep], bpow[keep], bmed[keep], area * np.abs(bcos[keep]), bn[keep]))
 
     for li in range(len(bs.lights)):
         wdir, dist, E = np.zeros((n, 3)), np.zeros(n), np.zeros((n, 3))
@@ -287,30 +340,10 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
     irr[vis] += E
     enter(vis, wdir, E)
     advance()
-    bpos, bdir, bpow, bmed, barea = (np.concatenate([b[i] for b in beams]) for i in range(5))
-    p_min = 1e-4 * bpow.max(axis=1) if len(bpow) else np.zeros(0)
-    out = {k: [] for k in ("start", "dir", "len", "power", "area", "medium", "ends")}
-    alive = np.ones(len(bpos), np.bool_)
-    for _ in range(max_reflections + 1):
-        act = np.flatnonzero(alive)
-        if len(act) == 0:
-            break
-        t, s, ng, ns = closest_surface_hits(caster, bs, bpos[act], bdir[act])
-        m = len(act) * segments
-        o = (np.zeros((m, 3)), np.zeros((m, 3)), np.zeros(m), np.zeros((m, 3)), np.zeros(m), np.zeros(m, np.int64),
-             np.zeros(m, np.int64))
-        p_, d_, w_, a_ = bpos[act], bdir[act], bpow[act], alive[act].copy()
-        _segments(bs.media, bs.surfaces, p_, d_, w_, bmed[act], barea[act], t, s, ng, ns, eps, segments,
-                  p_min[act], *o, a_)
-        bpos[act], bdir[act], bpow[act], alive[act] = p_, d_, w_, a_
-        valid = o[2] > 0
-        for key, arr in zip(out, o):
-            out[key].append(arr[valid])
-        advance()
+    bpos, bdir, bpow, bmed, barea, bnrm = (np.concatenate([b[i] for b in beams]) for i in range(6))
+    cat = beam_segments(caster, bs, bpos, bdir, bpow, bmed, barea, bnrm, segments, max_reflections, advance)
     caster.close()
     if progress is not None:
         progress(steps, steps)
-    cat = {k: (np.concatenate(v) if v else np.zeros((0, 3) if k in ("start", "dir", "power") else 0))
-           for k, v in out.items()}
     return LightSamples(pos, nrm, sid, np.full(n, area), irr, cat["start"], cat["dir"], cat["len"], cat["power"],
-                        cat["area"], cat["medium"].astype(np.int64), cat["ends"].astype(np.int64))
+                        cat["area"], cat["medium"], cat["ends"], cat["plane"])

@@ -10,7 +10,8 @@ roulette. Diffuse surfaces take one shadow ray per light and continue by cosine-
 emitters and the environment seen directly or through specular chains add their radiance (see _interact for when
 a shadow ray has already counted them).
 
-Not yet: the bounced component (eq. 7).
+Light reflected by the medium's boundary after scattering (sec. 3.10) comes as a second set of volume samples per
+medium (pointbased/bounced.py), evaluated by the same estimators into the `bounced` layer.
 """
 
 from __future__ import annotations
@@ -31,14 +32,14 @@ from pbvol_cli.pointbased.estimators import END_EXTENSION, double_multiple, sing
 from pbvol_cli.render.camera import generate_camera_rays
 from pbvol_cli.render.intersect import closest_surface_hits, light_hits, visible
 
-COMPONENTS = ("single", "double", "multiple")
+COMPONENTS = ("single", "double", "multiple", "bounced")
 
 
 @njit(cache=True)
 def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse):
     """Medium contribution of ray i over [0, tseg[i]] into out[i, component, channel]. A ray after a diffuse bounce
     (diffuse[i] > 0) takes settings[7] random points for every component (sec. 3.6: averaged over the bounces)."""
-    tree, v_start, v_dir, v_len, v_power, v_area, v_centre, v_scat, v_rb, tabs, v_ends = md
+    tree, v_start, v_dir, v_len, v_power, v_area, v_centre, v_scat, v_rb, tabs, v_ends, v_plane = md
     sig_a, sig_s = med[0:3], med[3:6]
     kind, g = int(med[6]), med[7]
     kmax, cut_size, rclamp, k2 = int(settings[0]), int(settings[1]), settings[2], int(settings[6])
@@ -72,7 +73,7 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse):
                 single_scattering(tree, v_start, v_dir, v_len, v_power, v_area, v_ends, sig_a, sig_s, kind, g, px,
                                   py, pz, wx, wy, wz, o)
             else:
-                double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, sig_a, sig_s, kind, g,
+                double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a, sig_s, kind, g,
                                 px, py, pz, wx, wy, wz, cut_size, rclamp, do_d, do_m, tabs, o, o3, rng, i)
             for c in range(3):
                 w = beta[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * d) / (pdf * n)
@@ -249,6 +250,7 @@ class MediumData:
         rb = np.sqrt(self.area / np.pi)  # the kernel's radius: the boxes must hold it
         self.rb = rb / beam_width  # the beam's own radius: double scattering's 1/r^2 smoothing
         self.ends = np.ascontiguousarray(samples.v_ends[sel])
+        self.plane = np.ascontiguousarray(samples.v_plane[sel])
         # boxes hold the kernel disc along the segment, continued at the boundary (estimators.END_EXTENSION)
         ext = END_EXTENSION * rb
         first = self.start - (ext * (self.ends & 1 > 0))[:, None] * self.dir
@@ -262,13 +264,13 @@ class MediumData:
 
     def kernel_tuple(self):
         return (self.tree.arrays(), self.start, self.dir, self.len, self.power, self.area, self.centre, self.scat,
-                self.rb, self.tabs, self.ends)
+                self.rb, self.tabs, self.ends, self.plane)
 
 
 def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, settings: dict, threads: int,
                progress=None):
     """Renders spp passes of one camera path per pixel; pass p uses the light samples media_for_pass(p)
-    ({medium: MediumData}). Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats)."""
+    ({medium: (MediumData of the lights' samples, MediumData of the bounced samples or None)}). Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats)."""
     W, H = int(bs.camera[12]), int(bs.camera[13])
     npix = W * H
     sett = np.array([settings["kmax"], settings["cut_size"], settings["clamp"],
@@ -298,6 +300,9 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, settings: di
 
 def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, sett, settings, layers):
     """n camera paths starting at global sample index `done`, traced to the end, added into layers."""
+    sett_b = sett.copy()
+    # the bounced samples' single, double and multiple all make the bounced layer (tests may take a subset)
+    sett_b[3:6] = settings.get("bounced_estimators", (1.0, 1.0, 1.0))
     pos, dirs = np.zeros((n, 3)), np.zeros((n, 3))
     pixel = np.zeros(n, np.int64)
     rng = np.zeros(n, np.uint64)
@@ -313,10 +318,10 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
         light_hits(bs.lights, pos, dirs, t, tl, li)
         tev = np.minimum(t, tl)
         inside = np.flatnonzero((medium >= 0) & np.isfinite(tev))
-        contrib = np.zeros((len(pos), 3, 3))
+        contrib = np.zeros((len(pos), 4, 3))
         for m in np.unique(medium[inside]):
             sub = inside[medium[inside] == m]
-            md = media_data.get(int(m))
+            md, mdb = media_data.get(int(m), (None, None))
             if md is not None and md.count:
                 # weak branches (internal reflections) are evaluated with probability beta_max / roulette,
                 # their weight divided by it: unbiased, and most of the cost was in branches of weight < 0.01
@@ -327,6 +332,11 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
                 beta_ev[ev] /= q[keep, None]
                 eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, bs.media[m], md.kernel_tuple(),
                               sett, contrib, state >> 2)
+                if mdb is not None and mdb.count:
+                    cb3 = np.zeros((len(pos), 3, 3))
+                    eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, bs.media[m], mdb.kernel_tuple(),
+                                  sett_b, cb3, state >> 2)
+                    contrib[:, 3] += cb3.sum(axis=1)
             st = bs.media[m, 0:3] + bs.media[m, 3:6]
             beta[sub] *= np.exp(-st[None, :] * tev[sub, None])
         for c, name in enumerate(COMPONENTS):

@@ -85,6 +85,7 @@ def test_stochastic_light_cut_is_unbiased(spread):
     scat = rng.random((n, 3))
     # segments of length 0 (points), so the formula below is exact for them
     length, start, rb = np.zeros(n), centre.copy(), np.full(n, 0.01)
+    no_plane = np.tile([0.0, 0.0, 1.0, np.inf], (n, 1))  # no boundary (used by the multiple term only)
     tree = build_octree(centre, centre - 0.01, centre + 0.01, d, scat).arrays()
     tabs = (empty_table().render_args(),) * 3
     P = np.array([1.5, 0.2, -0.3])
@@ -99,12 +100,12 @@ def test_stochastic_light_cut_is_unbiased(spread):
     state = np.array([7], np.uint64)
     out_d, out_m = np.zeros(3), np.zeros(3)
     n_nodes = len(tree[1])
-    double_multiple(tree, start, d, length, scat, centre, scat, rb, SIG_A, SIG_S, 1, G, *P, *w, n_nodes, 0.02, True,
+    double_multiple(tree, start, d, length, scat, centre, scat, rb, no_plane, SIG_A, SIG_S, 1, G, *P, *w, n_nodes, 0.02, True,
                     False, tabs, out_d, out_m, state, 0)
     assert out_d == pytest.approx(exact, rel=1e-9)
     runs = np.zeros((4000, 3))
     for k in range(len(runs)):
-        double_multiple(tree, start, d, length, scat, centre, scat, rb, SIG_A, SIG_S, 1, G, *P, *w, 4, 0.02, True,
+        double_multiple(tree, start, d, length, scat, centre, scat, rb, no_plane, SIG_A, SIG_S, 1, G, *P, *w, 4, 0.02, True,
                         False, tabs, runs[k], out_m, state, 0)
     mean, se = runs.mean(0), runs.std(0) / np.sqrt(len(runs))
     assert np.all(runs.std(0) > 0)  # the small cut is stochastic
@@ -138,9 +139,10 @@ def test_place_samples_caches_and_render_writes_component_layers(tmp_path):
     assert r.exit_code == 0, r.output
     img, meta = read_exr(out)
     layers = read_layers(out)
-    assert set(layers) == {"single", "double", "multiple", "surface"}
+    assert set(layers) == {"single", "double", "multiple", "bounced", "surface"}
     assert np.allclose(img, sum(layers.values()), rtol=1e-5, atol=1e-7)
-    assert layers["single"].sum() > 0 and layers["double"].sum() > 0 and layers["multiple"].sum() == 0
+    assert layers["single"].sum() > 0 and layers["double"].sum() > 0
+    assert layers["multiple"].sum() == 0 and layers["bounced"].sum() == 0
     assert meta["method"] == "pbl" and meta["stage_samples_reused"] == 1.0 and "stage_render_s" in meta
     assert "stages: light samples" in r.stdout and "camera pass" in r.stdout  # each stage's time and memory
     bad = runner.invoke(app, ["render", str(path), "--method", "pbl", "-o", str(out), "--components", "triple",

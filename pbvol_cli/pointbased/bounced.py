@@ -1,0 +1,129 @@
+"""Bounced scattering (Wang et al. 2016, sec. 3.10, eq. 7): scattered light reflected by the medium's boundary.
+
+The volume samples follow the unscattered light through internal reflections, and the double and multiple terms
+carry scattered light in straight lines (the table: through an infinite medium), so light that has scattered and
+is then reflected back by the boundary (Fresnel, total internal reflection above the critical angle) is missing:
+most of the light in a high-albedo medium behind glass (wax, milk).
+
+The paper stores this light at surface samples as a diffuse value and single-scatters it (eq. 7). Here it is
+carried the same way as the light from the lights, as beams:
+1. boundary points x_j (blue noise on the surfaces bounding the medium, area A_j, inward normal n_j);
+2. from each, a cosine-sampled direction w into the medium; the radiance arriving at x_j from w, L_in, is the
+   camera estimator (single + double + multiple of the previous generation's samples) along that ray;
+3. that light is reflected specularly: a beam from x_j along the mirror direction, of power
+   pi F(w . n_j) L_in A_j (cosine sampling: integral of L F cos dw = pi E[L F]), cross-section A_j;
+4. the beams are cut into volume samples like the lights' (their own internal reflections followed), and give
+   generation g + 1's samples, gathered in turn for the next generation.
+The union of generations is one more set of volume samples, evaluated on camera rays by the same three estimators;
+its sum is the `bounced` layer (light with at least one scattering before a reflection: order 2 and above).
+Boundaries that are not dielectric (index-matched, diffuse) reflect nothing here.
+"""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+from numba import njit, prange
+
+from pbvol_cli.geometry.scene_build import DIELECTRIC, BuiltScene
+from pbvol_cli.physics.fresnel import fresnel_dielectric
+from pbvol_cli.physics.sampling import rand, seed_state
+from pbvol_cli.pointbased.light_samples import beam_segments
+from pbvol_cli.pointbased.surface_samples import poisson_disk
+from pbvol_cli.render.intersect import closest_surface_hits
+
+
+def boundary_points(bs: BuiltScene, medium: int, count: int, seed: int):
+    """About `count` blue-noise points on the surfaces bounding `medium`. Returns (positions, inward normals,
+    surface ids, area per point (scene units^2)); empty arrays when no dielectric surface bounds it."""
+    surf = bs.surfaces
+    ids = np.array([k for k in range(len(surf)) if (surf[k, 1] == medium or surf[k, 2] == medium)
+                    and surf[k, 0] == DIELECTRIC], np.int64)
+    if len(ids) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64), 0.0
+    tri = np.isin(bs.tri_surface, ids)
+    sph = bs.spheres[np.isin(bs.spheres[:, 4].astype(np.int64), ids)]
+    pos, nrm, sid, area, _ = poisson_disk(bs.vertices, bs.faces[tri], bs.tri_normals[tri], bs.tri_surface[tri],
+                                          sph, count, seed)
+    inward = np.where((surf[sid, 1] == medium)[:, None], -nrm, nrm)  # normals point to the exterior
+    return pos, inward, sid, area
+
+
+@njit(parallel=True, cache=True)
+def _reflected_beams(surfaces, medium, pos, nin, sid, w, L, area, eps, bpos, bdir, bpow):
+    """Beam j: from x_j along the mirror image of the arriving light's direction (-w), power pi F L A_j."""
+    for j in prange(pos.shape[0]):
+        s = sid[j]
+        inside_is_interior = surfaces[s, 1] == medium
+        eta_i = surfaces[s, 3] if inside_is_interior else surfaces[s, 4]
+        eta_t = surfaces[s, 4] if inside_is_interior else surfaces[s, 3]
+        c = w[j, 0] * nin[j, 0] + w[j, 1] * nin[j, 1] + w[j, 2] * nin[j, 2]
+        F = fresnel_dielectric(max(c, 1e-9), eta_t / eta_i)[0] if c > 0.0 else 0.0
+        for k in range(3):
+            # the light travels along -w; mirrored: -w + 2 (w . n) n, into the medium
+            bdir[j, k] = -w[j, k] + 2.0 * c * nin[j, k]
+            bpos[j, k] = pos[j, k] + eps * nin[j, k]
+            bpow[j, k] = math.pi * F * L[j, k] * area
+
+
+@njit(parallel=True, cache=True)
+def _cosine_directions(nin, seed, stream, out, rng):
+    for j in prange(nin.shape[0]):
+        st = np.empty(1, np.uint64)
+        st[0] = seed_state(seed, stream, j)
+        u1, u2 = rand(st, 0), rand(st, 0)
+        r, phi = math.sqrt(u1), 2.0 * math.pi * u2
+        nx, ny, nz = nin[j, 0], nin[j, 1], nin[j, 2]
+        ax, ay, az = (0.0, 1.0, 0.0) if abs(nx) > 0.9 else (1.0, 0.0, 0.0)
+        t1x, t1y, t1z = ay * nz - az * ny, az * nx - ax * nz, ax * ny - ay * nx
+        ln = math.sqrt(t1x * t1x + t1y * t1y + t1z * t1z)
+        t1x, t1y, t1z = t1x / ln, t1y / ln, t1z / ln
+        t2x, t2y, t2z = ny * t1z - nz * t1y, nz * t1x - nx * t1z, nx * t1y - ny * t1x
+        a, b, c = r * math.cos(phi), r * math.sin(phi), math.sqrt(max(0.0, 1.0 - u1))
+        out[j, 0] = a * t1x + b * t2x + c * nx
+        out[j, 1] = a * t1y + b * t2y + c * ny
+        out[j, 2] = a * t1z + b * t2z + c * nz
+        rng[j] = st[0]
+
+
+def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, source, make_data, count: int,
+                    generations: int, segments: int, max_reflections: int, settings: np.ndarray, seed: int):
+    """Volume samples of the light scattered in `medium` and reflected by its boundary, `generations` times.
+
+    source: the medium's MediumData (the lights' volume samples); make_data(samples) builds one from a namespace
+    of v_* arrays; settings: the camera kernel's settings array (all components on). Returns the union of the
+    generations as such a namespace, or None when the boundary reflects nothing."""
+    from pbvol_cli.render.pbl import eval_segments
+
+    pos, nin, sid, area = boundary_points(bs, medium, count, seed)
+    n = len(pos)
+    if n == 0:
+        return None
+    gens = []
+    data = source
+    for g in range(generations):
+        w, rng = np.zeros((n, 3)), np.zeros(n, np.uint64)
+        _cosine_directions(nin, seed, 0xB0 + 4 * g, w, rng)
+        t, _, _, _ = closest_surface_hits(caster, bs, pos + bs.eps * nin, w)
+        ok = np.flatnonzero(np.isfinite(t))
+        out = np.zeros((n, 3, 3))
+        eval_segments(pool, threads, ok, pos + bs.eps * nin, w, np.ones((n, 3)), np.where(np.isfinite(t), t, 0.0),
+                      rng, bs.media[medium], data.kernel_tuple(), settings, out, np.zeros(n, np.int64))
+        L = out.sum(axis=1)
+        bpos, bdir, bpow = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+        _reflected_beams(bs.surfaces, medium, pos, nin, sid, w, L, area, bs.eps, bpos, bdir, bpow)
+        live = np.flatnonzero(bpow.max(axis=1) > 0)
+        if len(live) == 0:
+            break
+        seg = beam_segments(caster, bs, bpos[live], bdir[live], bpow[live], np.full(len(live), medium, np.int64),
+                            np.full(len(live), area), nin[live].copy(), segments, max_reflections)
+        gen = SimpleNamespace(**{f"v_{k}": v for k, v in seg.items()})
+        gens.append(gen)
+        if g + 1 < generations:
+            data = make_data(gen)
+    if not gens:
+        return None
+    return SimpleNamespace(**{k: np.concatenate([getattr(x, k) for x in gens])
+                              for k in ("v_start", "v_dir", "v_len", "v_power", "v_area", "v_medium", "v_ends", "v_plane")})
