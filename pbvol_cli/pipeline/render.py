@@ -227,7 +227,9 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
         from pbvol_cli.geometry.raycast import TriangleCaster
         from pbvol_cli.pointbased.bounced import bounced_samples
 
-        gather = np.array([pbl.kmax, pbl.cut_size, pbl.clamp, 1.0, 1.0, 1.0, pbl.kmax_scattered, pbl.kmax_diffuse])
+        # the light arriving at the boundary points: one point per gather ray for each estimator (the reflected
+        # light is smooth; the boundary points average it)
+        gather = np.array([1, pbl.cut_size, pbl.clamp, 1.0, 1.0, 1.0, 1, 1])
         caster = TriangleCaster(built.vertices, built.faces, threads)
         pool = ThreadPoolExecutor(threads) if threads > 1 else None
         try:
@@ -239,7 +241,9 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
             caster.close()
             if pool is not None:
                 pool.shutdown()
-        return None if b is None else MediumData(b, m, built.media[m], media_tables[m], pbl.beam_width)
+        # kernel: the boundary point's own area (beams from all around cross every point: a wider kernel only
+        # multiplies the beams each camera point sums)
+        return None if b is None else MediumData(b, m, built.media[m], media_tables[m], 1.0)
 
     W, H = int(built.camera[12]), int(built.camera[13])
     prog, update = progress_bar(opts.quiet, f"pbl {W}x{H} {spp} spp")

@@ -8,7 +8,10 @@ cross-section A_v (kernel 1/A_v), scattered power Phi_v^s = Phi_v sigma_s/sigma_
             average approximates.
 - double:   sigma_s p(m . w_c) Phi^s p(d . m) exp(-sigma_t r) <1/r^2>, m = (P - x)/r, where <1/r^2> averages 1/r^2
             over a ball of the source's extent (inv_r2_ball) rather than clamping it; segments near P are split.
-- multiple: Phi^s sigma_t^3 S_table(sigma_t (P - x), w_c) in the frame of (x, d).
+- multiple: Phi^s sigma_t^3 [S_table(sigma_t (P - x), w_c) in the frame of (x, d) minus the same for the mirror
+            image of (x, d) in the boundary plane nearest the sample]: the table's medium is infinite, and light
+            that crosses the boundary there scatters back (index-matched furnace: 2.02 without the image, 0.98
+            with it); what a dielectric boundary reflects is the bounced term (bounced.py).
 Double and multiple sum over all volume samples by a stochastic light cut (double_multiple): a few nodes of the
 octree, each represented by one sample drawn at random and weighted by its inverse probability, so the sum is
 unbiased whatever the cut; the cut only sets the noise.
@@ -123,7 +126,8 @@ MS_CELL = 0.1  # mean free paths: segments longer than this are split for the mu
 
 
 @njit(cache=True)
-def _segment_source(i, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz,
+def _segment_source(i, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a, sig_s, kind, g, px,
+                    py, pz,
                     wx, wy, wz, rclamp, do_double, do_multiple, tabs, out_d, out_m):
     """A volume sample as a source. Double scattering: one point far from P; near P (closer than two segment
     lengths) NEAR_SUB points along the segment, each with its exact share sigma_s/sigma_t (e^-st t0 - e^-st t1) of
@@ -138,7 +142,8 @@ def _segment_source(i, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v
         if n_ms <= 1:
             _source(v_centre[i, 0], v_centre[i, 1], v_centre[i, 2], v_dir[i, 0], v_dir[i, 1], v_dir[i, 2],
                     v_scat[i, 0], v_scat[i, 1], v_scat[i, 2], px, py, pz, wx, wy, wz, sig_a, sig_s, kind, g,
-                    max(rclamp, max(0.5 * ln, v_rb[i])), do_double and far, do_multiple, tabs, out_d, out_m, v_plane[i, 0],
+                    max(rclamp, max(0.5 * ln, v_rb[i])), do_double and far, do_multiple, tabs, out_d, out_m,
+                    v_plane[i, 0],
                     v_plane[i, 1], v_plane[i, 2], v_plane[i, 3])
             return
         if far and do_double:
@@ -146,23 +151,28 @@ def _segment_source(i, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v
                     v_scat[i, 0], v_scat[i, 1], v_scat[i, 2], px, py, pz, wx, wy, wz, sig_a, sig_s, kind, g,
                     max(rclamp, max(0.5 * ln, v_rb[i])), True, False, tabs, out_d, out_m, v_plane[i, 0],
                     v_plane[i, 1], v_plane[i, 2], v_plane[i, 3])
-        _split_source(i, n_ms, v_start, v_dir, v_len, v_power, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz, wx, wy, wz,
+        _split_source(i, n_ms, v_start, v_dir, v_len, v_power, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz, wx,
+                      wy, wz,
                       rclamp, False, True, tabs, out_d, out_m)
         return
     # near, double wanted
     if n_ms == NEAR_SUB:
-        _split_source(i, NEAR_SUB, v_start, v_dir, v_len, v_power, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz, wx, wy,
+        _split_source(i, NEAR_SUB, v_start, v_dir, v_len, v_power, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz,
+                      wx, wy,
                       wz, rclamp, True, do_multiple, tabs, out_d, out_m)
         return
-    _split_source(i, NEAR_SUB, v_start, v_dir, v_len, v_power, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz, wx, wy, wz,
+    _split_source(i, NEAR_SUB, v_start, v_dir, v_len, v_power, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz, wx,
+                  wy, wz,
                   rclamp, True, False, tabs, out_d, out_m)
     if n_ms > 0:
-        _split_source(i, n_ms, v_start, v_dir, v_len, v_power, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz, wx, wy, wz,
+        _split_source(i, n_ms, v_start, v_dir, v_len, v_power, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz, wx,
+                      wy, wz,
                       rclamp, False, True, tabs, out_d, out_m)
 
 
 @njit(cache=True)
-def _split_source(i, n, v_start, v_dir, v_len, v_power, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz, wx, wy, wz, rclamp,
+def _split_source(i, n, v_start, v_dir, v_len, v_power, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz, wx, wy,
+                  wz, rclamp,
                   do_double, do_multiple, tabs, out_d, out_m):
     """Segment i as n point sources at the midpoints of equal sub-segments, each with its exact share of the power
     scattered, sigma_s/sigma_t (e^-st t0 - e^-st t1) times the power entering the segment."""
@@ -176,7 +186,8 @@ def _split_source(i, n, v_start, v_dir, v_len, v_power, v_rb, v_plane, sig_a, si
         tm = 0.5 * (t0 + t1)
         _source(v_start[i, 0] + tm * v_dir[i, 0], v_start[i, 1] + tm * v_dir[i, 1], v_start[i, 2] + tm * v_dir[i, 2],
                 v_dir[i, 0], v_dir[i, 1], v_dir[i, 2], pw[0], pw[1], pw[2], px, py, pz, wx, wy, wz, sig_a, sig_s,
-                kind, g, max(rclamp, max(0.5 * (t1 - t0), v_rb[i])), do_double, do_multiple, tabs, out_d, out_m, v_plane[i, 0],
+                kind, g, max(rclamp, max(0.5 * (t1 - t0), v_rb[i])), do_double, do_multiple, tabs, out_d, out_m,
+                v_plane[i, 0],
                     v_plane[i, 1], v_plane[i, 2], v_plane[i, 3])
 
 
@@ -369,7 +380,8 @@ def _representative_importance(nd, tree, v_dir, v_len, v_centre, v_scat, v_rb, v
 
 
 @njit(cache=True)
-def _cut_estimate(heap, hn, node_of, tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a, sig_s, kind,
+def _cut_estimate(heap, hn, node_of, tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a,
+                  sig_s, kind,
                   g, px, py, pz, wx, wy, wz, rclamp, do_double, do_multiple, tabs, out_d, out_m, rng, ri):
     """Each node of the cut contributes one representative sample, weighted by 1 / its probability (unbiased for
     the node's sum): drawn by importance toward P when double scattering is wanted, else by scattered power.
@@ -385,7 +397,8 @@ def _cut_estimate(heap, hn, node_of, tree, v_start, v_dir, v_len, v_power, v_cen
         if power[nd, 0] + power[nd, 1] + power[nd, 2] <= 0.0:
             continue
         if do_double:  # importance toward P (see _representative_importance); multiple alone: by power
-            i, scale = _representative_importance(nd, tree, v_dir, v_len, v_centre, v_scat, v_rb, v_plane, px, py, pz, wx,
+            i, scale = _representative_importance(nd, tree, v_dir, v_len, v_centre, v_scat, v_rb, v_plane, px, py,
+                                                  pz, wx,
                                                   wy, wz, kind, g, st_min, rand(rng, ri))
             if i < 0:
                 continue
@@ -395,7 +408,8 @@ def _cut_estimate(heap, hn, node_of, tree, v_start, v_dir, v_len, v_power, v_cen
         for c in range(3):
             od[c] = 0.0
             om[c] = 0.0
-        _segment_source(i, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz,
+        _segment_source(i, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a, sig_s, kind, g,
+                        px, py, pz,
                         wx, wy, wz, rclamp, do_double, do_multiple, tabs, od, om)
         n += 1
         for c in range(3):
@@ -436,7 +450,8 @@ def double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb
     ms_pending = do_multiple
     while hn > 0:
         if ms_pending and n_refined >= ms_cut:
-            n_eval += _cut_estimate(heap, hn, node_of, tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane,
+            n_eval += _cut_estimate(heap, hn, node_of, tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb,
+                                    v_plane,
                                     sig_a, sig_s, kind, g, px, py, pz, wx, wy, wz, rclamp, False, True, tabs,
                                     out_d, out_m, rng, ri)
             ms_pending = False
@@ -453,7 +468,8 @@ def double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb
         if first_child[nd] < 0:  # a leaf: its samples exactly
             n_eval += end[nd] - start[nd]
             for k in range(start[nd], end[nd]):
-                _segment_source(order[k], v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a, sig_s, kind,
+                _segment_source(order[k], v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a,
+                                sig_s, kind,
                                 g, px, py, pz, wx, wy, wz, rclamp, do_double, ms_pending, tabs, out_d, out_m)
             continue
         for ch in range(first_child[nd], first_child[nd] + n_children[nd]):
@@ -466,7 +482,8 @@ def double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb
             node_of[e] = ch
             key[e] = _node_priority(ch, lo, hi, power, px, py, pz, st_min)
             hn = _heap_push(heap, hn, key, e)
-    n_eval += _cut_estimate(heap, hn, node_of, tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a,
+    n_eval += _cut_estimate(heap, hn, node_of, tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb,
+                            v_plane, sig_a,
                             sig_s, kind, g, px, py, pz, wx, wy, wz, rclamp, do_double, ms_pending, tabs, out_d, out_m,
                             rng, ri)
     return n_eval

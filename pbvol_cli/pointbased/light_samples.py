@@ -326,7 +326,8 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
             sub = alive[walk].copy()
             p_, d_, w_, m_, c_, n_ = bpos[walk], bdir[walk], bpow[walk], bmed[walk], bcos[walk], bn[walk]
             _cross(bs.surfaces, p_, d_, w_, m_, c_, ng, ns, t, s, eps, sub, n_)
-            bpos[walk], bdir[walk], bpow[walk], bmed[walk], bcos[walk], alive[walk], bn[walk] = p_, d_, w_, m_, c_, sub, n_
+            bpos[walk], bdir[walk], bpow[walk], bmed[walk], bcos[walk], alive[walk], bn[walk] = p_, d_, w_, m_, c_,
+            sub, n_
         keep = alive & (bmed >= 0)
         beams.append((bpos[keep], bdir[keep], bpow[keep], bmed[keep], area * np.abs(bcos[keep]), bn[keep]))
 

@@ -73,7 +73,8 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse):
                 single_scattering(tree, v_start, v_dir, v_len, v_power, v_area, v_ends, sig_a, sig_s, kind, g, px,
                                   py, pz, wx, wy, wz, o)
             else:
-                double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a, sig_s, kind, g,
+                double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a, sig_s,
+                                kind, g,
                                 px, py, pz, wx, wy, wz, cut_size, rclamp, do_d, do_m, tabs, o, o3, rng, i)
             for c in range(3):
                 w = beta[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * d) / (pdf * n)
@@ -270,7 +271,9 @@ class MediumData:
 def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, settings: dict, threads: int,
                progress=None):
     """Renders spp passes of one camera path per pixel; pass p uses the light samples media_for_pass(p)
-    ({medium: (MediumData of the lights' samples, MediumData of the bounced samples or None)}). Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats)."""
+    ({medium: (MediumData of the lights' samples, MediumData of the bounced samples or None)}). Returns (image (H,
+                                                                                                         W, 3),
+                                                                                                         layers {name: (H, W, 3)}, stats)."""
     W, H = int(bs.camera[12]), int(bs.camera[13])
     npix = W * H
     sett = np.array([settings["kmax"], settings["cut_size"], settings["clamp"],
@@ -303,6 +306,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
     sett_b = sett.copy()
     # the bounced samples' single, double and multiple all make the bounced layer (tests may take a subset)
     sett_b[3:6] = settings.get("bounced_estimators", (1.0, 1.0, 1.0))
+    sett_b[0] = sett[6]  # bounced light is smooth along a ray: k_max_scattered points for its single scattering too
     pos, dirs = np.zeros((n, 3)), np.zeros((n, 3))
     pixel = np.zeros(n, np.int64)
     rng = np.zeros(n, np.uint64)
