@@ -13,7 +13,9 @@ carried the same way as the light from the lights, as beams:
 3. that light is reflected specularly: a beam from x_j along the mirror direction, of power
    pi F(w . n_j) L_in A_j (cosine sampling: integral of L F cos dw = pi E[L F]), cross-section A_j;
 4. the beams are cut into volume samples like the lights' (their own internal reflections followed), and give
-   generation g + 1's samples, gathered in turn for the next generation.
+   generation g + 1's samples, gathered in turn for the next generation;
+5. the generations after the last are a geometric tail: the last generation's power is scaled by 1 / (1 - r), r
+   the ratio of its emitted power to the one before (measured r: 0.5-0.6 in wax behind eta 1.44).
 The union of generations is one more set of volume samples, evaluated on camera rays by the same three estimators;
 its sum is the `bounced` layer (light with at least one scattering before a reflection: order 2 and above).
 Boundaries that are not dielectric (index-matched, diffuse) reflect nothing here.
@@ -33,6 +35,9 @@ from pbvol_cli.physics.sampling import rand, seed_state
 from pbvol_cli.pointbased.light_samples import beam_segments
 from pbvol_cli.pointbased.surface_samples import poisson_disk
 from pbvol_cli.render.intersect import closest_surface_hits
+
+
+TAIL_RATIO_MAX = 0.9  # generation-to-generation ratio the tail is extrapolated with at most
 
 
 def boundary_points(bs: BuiltScene, medium: int, count: int, seed: int):
@@ -101,7 +106,7 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
     n = len(pos)
     if n == 0:
         return None
-    gens = []
+    gens, emitted = [], []
     data = source
     for g in range(generations):
         w, rng = np.zeros((n, 3)), np.zeros(n, np.uint64)
@@ -121,9 +126,16 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
                             np.full(len(live), area), nin[live].copy(), segments, max_reflections)
         gen = SimpleNamespace(**{f"v_{k}": v for k, v in seg.items()})
         gens.append(gen)
+        emitted.append(bpow[live].sum(axis=0))
         if g + 1 < generations:
             data = make_data(gen)
     if not gens:
         return None
+    if len(gens) >= 2:
+        # the generations after the last: a geometric tail at the last ratio of emitted powers (the later
+        # generations converge to the boundary's slowest-decaying pattern), carried by the last generation
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.clip(np.nan_to_num(emitted[-1] / emitted[-2]), 0.0, TAIL_RATIO_MAX)
+        gens[-1].v_power = gens[-1].v_power / (1.0 - r)[None, :]
     return SimpleNamespace(**{k: np.concatenate([getattr(x, k) for x in gens])
                               for k in ("v_start", "v_dir", "v_len", "v_power", "v_area", "v_medium", "v_ends", "v_plane")})

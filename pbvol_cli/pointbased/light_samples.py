@@ -170,7 +170,7 @@ def _segments(media, surfaces, pos, d, power, medium, area, t, surf, ng, ns, eps
             tc = 0.5 * (t0 + t1)
             cs = d[k, 0] * bn[k, 0] + d[k, 1] * bn[k, 1] + d[k, 2] * bn[k, 2]
             ce = d[k, 0] * ng[k, 0] + d[k, 1] * ng[k, 1] + d[k, 2] * ng[k, 2]
-            hs, he = tc * abs(cs), (tex - tc) * abs(ce)
+            hs, he = tc * abs(cs) + eps, (tex - tc) * abs(ce)  # (the start lies eps inside the boundary)
             if hs <= he:  # the start plane lies behind: normal -d-ward
                 sg = -1.0 if cs > 0.0 else 1.0
                 nx, ny, nz, h = sg * bn[k, 0], sg * bn[k, 1], sg * bn[k, 2], hs
@@ -326,8 +326,8 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
             sub = alive[walk].copy()
             p_, d_, w_, m_, c_, n_ = bpos[walk], bdir[walk], bpow[walk], bmed[walk], bcos[walk], bn[walk]
             _cross(bs.surfaces, p_, d_, w_, m_, c_, ng, ns, t, s, eps, sub, n_)
-            bpos[walk], bdir[walk], bpow[walk], bmed[walk], bcos[walk], alive[walk], bn[walk] = p_, d_, w_, m_, c_,
-            sub, n_
+            bpos[walk], bdir[walk], bpow[walk], bmed[walk], bcos[walk] = p_, d_, w_, m_, c_
+            alive[walk], bn[walk] = sub, n_
         keep = alive & (bmed >= 0)
         beams.append((bpos[keep], bdir[keep], bpow[keep], bmed[keep], area * np.abs(bcos[keep]), bn[keep]))
 

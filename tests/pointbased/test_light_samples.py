@@ -53,6 +53,37 @@ def test_refracting_sphere_beams_stay_inside_through_internal_reflections(tmp_pa
     beams = np.sum(ls.s_irradiance.sum(1) > 0)
     assert len(ls.v_start) > 8 * beams
     assert len(outer_layer_surfaces(bs)) == 1
+    _check_planes(ls, lambda c: 1.0 - np.linalg.norm(c, axis=1))
+
+
+def _check_planes(ls, depth):
+    """Each sample's boundary plane (n . x = q) is a unit-normal tangent plane of the (convex) boundary, on the far
+    side of the segment's centre: no nearer than the boundary itself (depth(c): distance to it)."""
+    c = ls.v_start + 0.5 * ls.v_len[:, None] * ls.v_dir
+    n, q = ls.v_plane[:, :3], ls.v_plane[:, 3]
+    assert np.allclose(np.linalg.norm(n, axis=1), 1.0)
+    h = q - np.einsum("ij,ij->i", n, c)
+    assert np.all(h >= depth(c) - 1e-6)
+
+
+def test_beams_reach_a_liquid_through_the_glass(tmp_path):
+    """Light from above onto a glass (eta 1.5) of liquid (eta 1.33): beams cross the layers into the liquid (the
+    free surface and through the wall), and every volume sample lies in the liquid, below its level."""
+    scene = {"camera": camera(), "lights": [{"type": "directional", "direction": [0.3, -1, 0.2], "irradiance": 1.0}],
+             "shapes": [{"type": "cup", "radius": 1.0, "height": 2.0, "wall": 0.1, "bottom": 0.2,
+                         "interface": "dielectric", "eta": 1.5, "fill": 0.6, "segments": 64,
+                         "liquid": {"albedo": 0.9, "mean_free_path": 0.5, "g": 0.5, "eta": 1.33}}]}
+    bs = build(tmp_path, scene)
+    ls = place_light_samples(bs, 4000, 8, 4, 8, 1)
+    assert len(ls.v_start) > 0 and np.all(ls.v_medium == 0)
+    ends = ls.v_start + ls.v_len[:, None] * ls.v_dir
+    level = 0.2 + 0.6 * (2.0 - 0.2)
+    for x in (ls.v_start, ends):
+        assert np.all(np.hypot(x[:, 0], x[:, 2]) < 0.9 + 1e-3) and np.all(x[:, 1] < level + 1e-3)
+        assert np.all(x[:, 1] > 0.2 - 1e-3)
+    wall = 0.9 * np.cos(np.pi / 64)  # the inner wall: a 64-gon in the circle of radius 0.9
+    _check_planes(ls, lambda c: np.minimum(wall - np.hypot(c[:, 0], c[:, 2]),
+                                           np.minimum(level - c[:, 1], c[:, 1] - 0.2)))
 
 
 def test_surface_samples_receive_indirect_light_from_a_diffuse_floor(tmp_path):
