@@ -235,7 +235,7 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
         try:
             b = bounced_samples(built, caster, pool, threads, m, md,
                                 lambda smp: MediumData(smp, m, built.media[m], media_tables[m], pbl.beam_width),
-                                pbl.bounce_samples, pbl.bounce_generations, pbl.segments_per_beam,
+                                pbl.bounce_samples, pbl.bounce_generations, max(1, pbl.segments_per_beam // 4),
                                 pbl.max_internal_reflections, gather, s)
         finally:
             caster.close()

@@ -32,11 +32,12 @@ from numba import njit, prange
 from pbvol_cli.geometry.scene_build import DIELECTRIC, BuiltScene
 from pbvol_cli.physics.fresnel import fresnel_dielectric
 from pbvol_cli.physics.sampling import rand, seed_state
-from pbvol_cli.pointbased.light_samples import beam_segments
+from pbvol_cli.pointbased.light_samples import beam_segments, layer_reflectance, slab_reflectance
 from pbvol_cli.pointbased.surface_samples import poisson_disk
 from pbvol_cli.render.intersect import closest_surface_hits
 
 
+MIN_SHARE = 0.01  # generations stop once one scatters less than this share of the lights' samples' power
 TAIL_RATIO_MAX = 0.9  # generation-to-generation ratio the tail is extrapolated with at most
 
 
@@ -57,15 +58,16 @@ def boundary_points(bs: BuiltScene, medium: int, count: int, seed: int):
 
 
 @njit(parallel=True, cache=True)
-def _reflected_beams(surfaces, medium, pos, nin, sid, w, L, area, eps, bpos, bdir, bpow):
-    """Beam j: from x_j along the mirror image of the arriving light's direction (-w), power pi F L A_j."""
+def _reflected_beams(surfaces, medium, pos, nin, sid, w, L, area, eps, R2, bpos, bdir, bpow):
+    """Beam j: from x_j along the mirror image of the arriving light's direction (-w), power pi F L A_j (F with
+    the glass wall behind the boundary, if any: slab_reflectance)."""
     for j in prange(pos.shape[0]):
         s = sid[j]
         inside_is_interior = surfaces[s, 1] == medium
         eta_i = surfaces[s, 3] if inside_is_interior else surfaces[s, 4]
         eta_t = surfaces[s, 4] if inside_is_interior else surfaces[s, 3]
         c = w[j, 0] * nin[j, 0] + w[j, 1] * nin[j, 1] + w[j, 2] * nin[j, 2]
-        F = fresnel_dielectric(max(c, 1e-9), eta_t / eta_i)[0] if c > 0.0 else 0.0
+        F = slab_reflectance(fresnel_dielectric(max(c, 1e-9), eta_t / eta_i)[0], R2[j]) if c > 0.0 else 0.0
         for k in range(3):
             # the light travels along -w; mirrored: -w + 2 (w . n) n, into the medium
             bdir[j, k] = -w[j, k] + 2.0 * c * nin[j, k]
@@ -100,7 +102,7 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
     source: the medium's MediumData (the lights' volume samples); make_data(samples) builds one from a namespace
     of v_* arrays; settings: the camera kernel's settings array (all components on). Returns the union of the
     generations as such a namespace, or None when the boundary reflects nothing."""
-    from pbvol_cli.render.pbl import eval_segments
+    from pbvol_cli.render.pbl import bounced_share, eval_segments
 
     pos, nin, sid, area = boundary_points(bs, medium, count, seed)
     n = len(pos)
@@ -118,17 +120,24 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
                       rng, bs.media[medium], data.kernel_tuple(), settings, out, np.zeros(n, np.int64))
         L = out.sum(axis=1)
         bpos, bdir, bpow = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
-        _reflected_beams(bs.surfaces, medium, pos, nin, sid, w, L, area, bs.eps, bpos, bdir, bpow)
+        # the glass wall behind the boundary, seen by the light leaving along -w from just inside x_j
+        inner = pos + bs.eps * nin
+        t0, s0, ng0, ns0 = closest_surface_hits(caster, bs, inner, -w)
+        R2 = layer_reflectance(caster, bs, inner, -w, t0, s0, ng0, ns0)
+        _reflected_beams(bs.surfaces, medium, pos, nin, sid, w, L, area, bs.eps, R2, bpos, bdir, bpow)
         live = np.flatnonzero(bpow.max(axis=1) > 0)
         if len(live) == 0:
             break
         seg = beam_segments(caster, bs, bpos[live], bdir[live], bpow[live], np.full(len(live), medium, np.int64),
-                            np.full(len(live), area), nin[live].copy(), segments, max_reflections)
+                            np.full(len(live), area), nin[live].copy(), segments, max_reflections,
+                            seed + 7919 * (g + 1))
         gen = SimpleNamespace(**{f"v_{k}": v for k, v in seg.items()})
         gens.append(gen)
         emitted.append(bpow[live].sum(axis=0))
         if g + 1 < generations:
             data = make_data(gen)
+            if bounced_share(source, data) < MIN_SHARE:
+                break  # too little to follow further (a liquid whose boundary hardly reflects)
     if not gens:
         return None
     if len(gens) >= 2:

@@ -132,10 +132,70 @@ def _cross(surfaces, pos, d, power, medium, cosx, ng, ns, t, surf, eps, alive, b
 
 
 @njit(parallel=True, cache=True)
-def _segments(media, surfaces, pos, d, power, medium, area, t, surf, ng, ns, eps, nseg, p_min, bn,
+def _into_layer(surfaces, pos, d, t, surf, ng, ns, eps, out_pos, out_dir, layer_eta, ok):
+    """Beams k leaving through surface surf[k] at distance t[k] into a transparent layer (a dielectric side with no
+    medium and eta != 1: the glass around a liquid): where they would continue in it (refracted)."""
+    for k in prange(pos.shape[0]):
+        ok[k] = False
+        s = surf[k]
+        if s < 0 or t[k] == np.inf or surfaces[s, 0] != DIELECTRIC:
+            continue
+        entering, nx, ny, nz, gx, gy, gz, eta_i, eta_t, cos_i, F, cos_t = _interface(surfaces, s, d, ng, ns, k)
+        far_medium = surfaces[s, 1] if entering else surfaces[s, 2]
+        if F >= 1.0 or far_medium >= 0 or eta_t == 1.0:
+            continue
+        wx, wy, wz = refract(d[k, 0], d[k, 1], d[k, 2], nx, ny, nz, eta_t / eta_i, cos_i, cos_t)
+        out_dir[k, 0], out_dir[k, 1], out_dir[k, 2] = wx, wy, wz
+        for c in range(3):
+            out_pos[k, c] = pos[k, c] + t[k] * d[k, c] - eps * (gx if c == 0 else (gy if c == 1 else gz))
+        layer_eta[k] = eta_t
+        ok[k] = True
+
+
+@njit(parallel=True, cache=True)
+def _layer_exit(surfaces, d, surf, ng, layer_eta, R2):
+    """Fresnel reflectance where beams in a layer (index layer_eta) meet its far side (0 where it is not a
+    smooth interface: the light that crosses a diffuse or mirror surface is not followed)."""
+    for k in prange(d.shape[0]):
+        s = surf[k]
+        R2[k] = 0.0
+        if s < 0 or (surfaces[s, 0] != DIELECTRIC and surfaces[s, 0] != NULL):
+            continue
+        c = d[k, 0] * ng[k, 0] + d[k, 1] * ng[k, 1] + d[k, 2] * ng[k, 2]
+        eta_beyond = surfaces[s, 3] if c < 0.0 else surfaces[s, 4]
+        R2[k] = fresnel_dielectric(min(abs(c), 1.0), eta_beyond / layer_eta[k])[0]
+
+
+def layer_reflectance(caster, bs: BuiltScene, pos, d, t, surf, ng, ns) -> np.ndarray:
+    """For rays leaving a medium through surf at distance t into a thin transparent layer (a glass wall): the
+    reflectance of the layer's far side, R2 (0 where there is no layer). With the near side's F the layer
+    reflects F + (1 - F)^2 R2 / (1 - F R2) (a slab's inter-reflections; the displacement across the wall is
+    ignored): light that the glass sends back into the liquid by total internal reflection at the glass-air
+    side, which the liquid-glass Fresnel alone (eta 1.5 / 1.35) misses."""
+    n = len(pos)
+    R2 = np.zeros(n)
+    lp, ld, le, ok = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros(n, np.bool_)
+    _into_layer(bs.surfaces, pos, d, t, surf, ng, ns, bs.eps, lp, ld, le, ok)
+    idx = np.flatnonzero(ok)
+    if len(idx):
+        _, s2, ng2, _ = closest_surface_hits(caster, bs, lp[idx], ld[idx])
+        r = np.zeros(len(idx))
+        _layer_exit(bs.surfaces, ld[idx], s2, ng2, le[idx], r)
+        R2[idx] = r
+    return R2
+
+
+@njit(inline="always", cache=True)
+def slab_reflectance(F, R2):
+    """Reflectance of an interface (F) backed by a layer whose far side reflects R2, inter-reflections summed."""
+    return F + (1.0 - F) * (1.0 - F) * R2 / (1.0 - F * R2) if R2 > 0.0 else F
+
+
+@njit(parallel=True, cache=True)
+def _segments(media, surfaces, pos, d, power, medium, area, t, surf, ng, ns, eps, nseg, p_min, bn, R2, seed, leg,
               o_start, o_dir, o_len, o_power, o_area, o_medium, o_ends, o_plane, alive):
     """Cut each beam's path to the boundary into nseg volume samples (equal fractions of 1 - exp(-sigma t) in the
-    most penetrating channel), then reflect it internally (Fresnel F) or end it. o_ends marks the segments that
+    most penetrating channel), then reflect it internally (Fresnel F; below p_min by roulette) or end it. o_ends marks the segments that
     start (1) or end (2) on the boundary; o_plane is the nearer of the boundary's tangent planes where the beam
     starts (normal bn) and ends, as (n, q) with n . x = q on it and n pointing from the segment to it."""
     for k in prange(pos.shape[0]):
@@ -188,14 +248,22 @@ def _segments(media, surfaces, pos, d, power, medium, area, t, surf, ng, ns, eps
             continue
         dx, dy, dz = d[k, 0], d[k, 1], d[k, 2]
         entering, nx, ny, nz, gx, gy, gz, eta_i, eta_t, cos_i, F, _ = _interface(surfaces, s, d, ng, ns, k)
+        F = slab_reflectance(F, R2[k])  # a glass wall behind the boundary reflects too (layer_reflectance)
         bn[k, 0], bn[k, 1], bn[k, 2] = ng[k, 0], ng[k, 1], ng[k, 2]
         pmax = 0.0
         for c in range(3):
             power[k, c] *= math.exp(-(media[m, c] + media[m, 3 + c]) * tex) * F
             pmax = max(pmax, power[k, c])
         if pmax < p_min[k]:
-            alive[k] = False
-            continue
+            # Russian roulette on weak reflections (unbiased): a beam trapped by total internal reflection would
+            # otherwise add max_reflections legs of little power each
+            st = np.empty(1, np.uint64)
+            st[0] = seed_state(seed, 0x5E6 + leg, k)
+            if pmax <= 0.0 or rand(st, 0) * p_min[k] >= pmax:
+                alive[k] = False
+                continue
+            for c in range(3):
+                power[k, c] *= p_min[k] / pmax
         wx, wy, wz = reflect(dx, dy, dz, nx, ny, nz)
         for c in range(3):
             pos[k, c] = pos[k, c] + tex * d[k, c] + eps * (gx if c == 0 else (gy if c == 1 else gz))
@@ -247,16 +315,19 @@ def _indirect(caster, bs, pos, nrm, eps, seed):
     return hit[keep], wdir[hit[keep]], E_in[keep]
 
 
+REFLECTION_ROULETTE = 0.1  # reflected beams weaker than this share of their initial power play roulette
+
+
 def beam_segments(caster, bs: BuiltScene, bpos, bdir, bpow, bmed, barea, bnrm, segments: int, max_reflections: int,
-                  advance=None) -> dict:
+                  seed: int, advance=None) -> dict:
     """Volume samples along beams (start, direction, power at the start in W, medium, cross-section, boundary
-    normal at the start) followed through internal reflections until their power falls below 1e-4 of the
-    strongest beam's. Returns the arrays {start, dir, len, power, area, medium, ends, plane}; the beam arrays are
-    consumed."""
-    p_min = 1e-4 * bpow.max(axis=1) if len(bpow) else np.zeros(0)
+    normal at the start) followed through internal reflections (at most max_reflections; below
+    REFLECTION_ROULETTE of the initial power by Russian roulette). Returns the arrays {start, dir, len, power,
+    area, medium, ends, plane}; the beam arrays are consumed."""
+    p_min = REFLECTION_ROULETTE * bpow.max(axis=1) if len(bpow) else np.zeros(0)
     out = {k: [] for k in ("start", "dir", "len", "power", "area", "medium", "ends", "plane")}
     alive = np.ones(len(bpos), np.bool_)
-    for _ in range(max_reflections + 1):
+    for leg in range(max_reflections + 1):
         act = np.flatnonzero(alive)
         if len(act) == 0:
             break
@@ -265,8 +336,9 @@ def beam_segments(caster, bs: BuiltScene, bpos, bdir, bpow, bmed, barea, bnrm, s
         o = (np.zeros((m, 3)), np.zeros((m, 3)), np.zeros(m), np.zeros((m, 3)), np.zeros(m), np.zeros(m, np.int64),
              np.zeros(m, np.int64), np.zeros((m, 4)))
         p_, d_, w_, n_, a_ = bpos[act], bdir[act], bpow[act], bnrm[act], alive[act].copy()
+        R2 = layer_reflectance(caster, bs, p_, d_, t, s, ng, ns)
         _segments(bs.media, bs.surfaces, p_, d_, w_, bmed[act], barea[act], t, s, ng, ns, bs.eps, segments,
-                  p_min[act], n_, *o, a_)
+                  p_min[act], n_, R2, seed, leg, *o, a_)
         bpos[act], bdir[act], bpow[act], bnrm[act], alive[act] = p_, d_, w_, n_, a_
         valid = o[2] > 0
         for key, arr in zip(out, o):
@@ -342,7 +414,7 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
     enter(vis, wdir, E)
     advance()
     bpos, bdir, bpow, bmed, barea, bnrm = (np.concatenate([b[i] for b in beams]) for i in range(6))
-    cat = beam_segments(caster, bs, bpos, bdir, bpow, bmed, barea, bnrm, segments, max_reflections, advance)
+    cat = beam_segments(caster, bs, bpos, bdir, bpow, bmed, barea, bnrm, segments, max_reflections, seed, advance)
     caster.close()
     if progress is not None:
         progress(steps, steps)

@@ -230,6 +230,16 @@ def _interact(surfaces, media, lights, pos, dirs, beta, medium, depth, rng, t, s
             child_ok[j] = True
 
 
+BOUNCED_ROULETTE = 0.2  # bounced samples carrying less than this share of the scattered power are evaluated
+# on that share / BOUNCED_ROULETTE of the camera segments
+
+
+def bounced_share(md, mdb) -> float:
+    """The bounced samples' scattered power relative to the lights' samples' (all channels together)."""
+    a = float(md.scat.sum())
+    return float(mdb.scat.sum()) / a if a > 0 else 0.0
+
+
 class MediumData:
     """A medium's light samples prepared for the kernels: octree, per-sample arrays, its three tables."""
 
@@ -337,8 +347,13 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
                 eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, bs.media[m], md.kernel_tuple(),
                               sett, contrib, state >> 2)
                 if mdb is not None and mdb.count:
+                    # where the bounced light is a small share of the scattered power, it is evaluated on a
+                    # matching fraction of the segments (weight 1 / fraction: unbiased, its noise stays small)
+                    qb = min(1.0, bounced_share(md, mdb) / BOUNCED_ROULETTE)
+                    evb = ev[roulette_rng.random(len(ev)) < qb]
+                    beta_b = beta_ev / qb
                     cb3 = np.zeros((len(pos), 3, 3))
-                    eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, bs.media[m], mdb.kernel_tuple(),
+                    eval_segments(pool, threads, evb, pos, dirs, beta_b, tev, rng, bs.media[m], mdb.kernel_tuple(),
                                   sett_b, cb3, state >> 2)
                     contrib[:, 3] += cb3.sum(axis=1)
             st = bs.media[m, 0:3] + bs.media[m, 3:6]
