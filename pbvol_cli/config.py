@@ -263,7 +263,7 @@ class PblSettings(Strict):
                             "(0: a new set every pass; 1: the cached set only)")
     roulette: float = Field(0.1, ge=0, description="camera branches of weight below this evaluate the medium "
                             "with probability weight / roulette (0: always)")
-    bounce_samples: int = Field(2000, ge=16, description="boundary points gathering the scattered light that the "
+    bounce_samples: int = Field(1000, ge=16, description="boundary points gathering the scattered light that the "
                                 "medium's boundary reflects back (sec. 3.10, the bounced layer)")
     bounce_generations: int = Field(3, ge=0, description="reflections of scattered light followed (0: none)")
     components: tuple[Literal["single", "double", "multiple", "bounced"], ...] = ("single", "double", "multiple",
