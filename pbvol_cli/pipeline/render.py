@@ -225,7 +225,7 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
         if "bounced" not in comps or pbl.bounce_generations == 0 or md.count == 0:
             return None
         from pbvol_cli.geometry.raycast import TriangleCaster
-        from pbvol_cli.pointbased.bounced import bounced_samples
+        from pbvol_cli.pointbased.bounced import BOUNCED_KERNEL, bounced_samples
 
         # the light arriving at the boundary points: one point per gather ray for each estimator (the reflected
         # light is smooth; the boundary points average it)
@@ -241,9 +241,7 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
             caster.close()
             if pool is not None:
                 pool.shutdown()
-        # kernel: the boundary point's own area (beams from all around cross every point: a wider kernel only
-        # multiplies the beams each camera point sums)
-        return None if b is None else MediumData(b, m, built.media[m], media_tables[m], 1.0)
+        return None if b is None else MediumData(b, m, built.media[m], media_tables[m], BOUNCED_KERNEL)
 
     W, H = int(built.camera[12]), int(built.camera[13])
     prog, update = progress_bar(opts.quiet, f"pbl {W}x{H} {spp} spp")

@@ -13,7 +13,7 @@ from pbvol_cli import config as C
 from pbvol_cli.errors import PbvolError
 from pbvol_cli.pipeline.cache import key_of, load_npz, save_npz_atomic
 
-FORMAT_VERSION = 6  # 2: indirect diffuse light at the surface samples; 3: boundary planes; 4: glass walls reflect; 5: roulette on weak reflections (0.01)
+FORMAT_VERSION = 7  # 2: indirect diffuse light at the surface samples; 3: boundary planes; 4: glass walls reflect; 5: roulette on weak reflections (1e-4)
 
 
 @dataclass

@@ -21,7 +21,7 @@ def _sphere(eta=1.5, mfp=1.0):
 
 def test_boundary_points_cover_the_boundary_with_inward_normals(tmp_path):
     bs = build(tmp_path, _sphere())
-    pos, nin, sid, area = boundary_points(bs, 0, 500, seed=3)
+    pos, nin, sid, area, spacing = boundary_points(bs, 0, 500, seed=3)
     assert abs(len(pos) * area / (4 * np.pi) - 1) < 1e-9  # the areas tile the sphere
     assert np.allclose(np.linalg.norm(pos, axis=1), 1.0, atol=1e-6)
     assert np.all(np.sum(nin * pos, axis=1) < -0.99)  # inward: toward the centre
@@ -60,3 +60,18 @@ def test_double_plus_bounced_single_matches_volpath_order_2(tmp_path):
     ratio = 0.5 * (halves[0] + halves[1]) / ref
     print("double + bounced / volpath order 2:", ratio, "se", se / ref)
     assert np.all(ratio > 0.93 - 4 * se / ref) and np.all(ratio < 1.03 + 4 * se / ref), (ratio, se / ref)
+
+
+def test_sharing_among_neighbours_keeps_the_total_and_spreads_an_outlier():
+    from pbvol_cli.pointbased.bounced import _share_among_neighbours
+
+    rng = np.random.default_rng(4)
+    pos = rng.random((300, 3))
+    val = rng.random((300, 3))
+    val[7] = 1000.0  # one gather ray's outlier
+    out = np.zeros_like(val)
+    _share_among_neighbours(pos, val, 0.2, out)
+    assert np.allclose(out.sum(0), val.sum(0))
+    near = np.linalg.norm(pos - pos[7], axis=1) <= 0.2
+    assert near.sum() > 5 and out[~near].max() < 2.0  # only its neighbours received it, each a share
+    assert out[near].max() < 1000.0 / near.sum() * 3
