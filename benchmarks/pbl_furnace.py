@@ -29,6 +29,8 @@ def main():
     ap.add_argument("--eta", default="1.0,1.5", help="comma list of boundary indices (1: index-matched)")
     ap.add_argument("--mfp", default="0.5,2.0", help="comma list of mean free paths (the sphere's radius is 1)")
     ap.add_argument("--g", type=float, default=0.0, help="Henyey-Greenstein mean cosine")
+    ap.add_argument("--orders", action="store_true", help="also volpath --orders 0, 1, 2, 3+ (256 spp), for the "
+                    "layers surface, single, double, multiple (+ bounced)")
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="pbvol-furnace-"))
     for eta in (float(x) for x in args.eta.split(",")):
@@ -45,6 +47,13 @@ def main():
             c = slice(5, 11)
             parts = ", ".join(f"{k} {float(v[c, c].mean()):.3f}" for k, v in layers.items())
             print(f"eta {eta} mean free path {mfp} g {args.g}: centre {img[c, c].mean():.3f} ({parts})")
+            if args.orders:
+                from conftest import build, volpath
+
+                bs = build(tmp, scene)
+                parts = ", ".join(f"{o} {float(volpath(bs, spp=256, seed=1, orders=o)[c, c].mean()):.3f}"
+                                  for o in ("0", "1", "2", "3+"))
+                print(f"    volpath --orders: {parts}")
 
 
 if __name__ == "__main__":
