@@ -369,7 +369,9 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
         shp, shd, shdist, shc, shok = (np.zeros((ks, 3)), np.zeros((ks, 3)), np.zeros(ks), np.zeros((ks, 3)),
                                        np.zeros(ks, np.bool_))
         li = np.where(tl < t, li, -1)
-        _interact(bs.surfaces, bs.media, bs.lights, pos, dirs, beta, medium, depth, rng, t, surf, ng, ns, li,
+        # _interact's t is the distance to what the ray meets: the emitter's where one is in front (a sphere
+        # light's side is judged at that point)
+        _interact(bs.surfaces, bs.media, bs.lights, pos, dirs, beta, medium, depth, rng, tev, surf, ng, ns, li,
                   bs.eps, settings["max_split_depth"], seed, emit, cp, cd, cb, cm, cok, shp, shd, shdist, shc, shok,
                   state, cstate, settings["diffuse_bounces"])
         sidx = np.flatnonzero(shok)
