@@ -29,6 +29,8 @@ def main():
     ap.add_argument("--eta", default="1.0,1.5", help="comma list of boundary indices (1: index-matched)")
     ap.add_argument("--mfp", default="0.5,2.0", help="comma list of mean free paths (the sphere's radius is 1)")
     ap.add_argument("--g", type=float, default=0.0, help="Henyey-Greenstein mean cosine")
+    ap.add_argument("--albedo", type=float, default=1.0, help="single-scattering albedo (below 1 the centre is not "
+                    "1: compare with --orders)")
     ap.add_argument("--orders", action="store_true", help="also volpath --orders 0, 1, 2, 3+ (256 spp), for the "
                     "layers surface, single, double, multiple (+ bounced)")
     args = ap.parse_args()
@@ -36,7 +38,7 @@ def main():
     for eta in (float(x) for x in args.eta.split(",")):
         for mfp in (float(x) for x in args.mfp.split(",")):
             shape = {"type": "sphere", "radius": 1.0, "interface": "null" if eta == 1.0 else "dielectric",
-                     "medium": {"albedo": 1.0, "mean_free_path": mfp, "g": args.g}}
+                     "medium": {"albedo": args.albedo, "mean_free_path": mfp, "g": args.g}}
             if eta != 1.0:
                 shape["eta"] = eta
             scene = {"camera": camera((16, 16), position=(0, 0, 3.0), fov=30), "render": {"spp": 8},
@@ -46,7 +48,7 @@ def main():
             layers, img = read_layers(tmp / "o.exr"), read_exr(tmp / "o.exr")[0]
             c = slice(5, 11)
             parts = ", ".join(f"{k} {float(v[c, c].mean()):.3f}" for k, v in layers.items())
-            print(f"eta {eta} mean free path {mfp} g {args.g}: centre {img[c, c].mean():.3f} ({parts})")
+            print(f"eta {eta} mean free path {mfp} g {args.g} albedo {args.albedo}: centre {img[c, c].mean():.3f} ({parts})")
             if args.orders:
                 from conftest import build, volpath
 
