@@ -279,7 +279,8 @@ def _lit(caster, bs, li, pos, nrm, eps, seed, wdir, dist, E):
     ok = np.zeros(len(pos), np.bool_)
     _connect(bs.lights, li, pos, nrm, eps, seed, wdir, dist, E, ok)
     idx = np.flatnonzero(ok)
-    return idx[visible(caster, bs, pos[idx] + eps * nrm[idx], wdir[idx], dist[idx] * (1 - 1e-7) - 2 * eps)]
+    return idx[visible(caster, bs, pos[idx] + eps * nrm[idx], wdir[idx], dist[idx] * (1 - 1e-7) - 2 * eps,
+                       np.full(len(idx), li, np.int64))]
 
 
 def _indirect(caster, bs, pos, nrm, eps, seed):

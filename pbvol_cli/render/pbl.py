@@ -329,7 +329,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
     while len(pos):
         t, surf, ng, ns = closest_surface_hits(caster, bs, pos, dirs)
         tl, li = np.empty(len(pos)), np.empty(len(pos), np.int64)
-        light_hits(bs.lights, pos, dirs, t, tl, li)
+        light_hits(bs.lights, pos, dirs, t, tl, li, np.full(len(pos), -1, np.int64))
         tev = np.minimum(t, tl)
         inside = np.flatnonzero((medium >= 0) & np.isfinite(tev))
         contrib = np.zeros((len(pos), 4, 3))
@@ -376,7 +376,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
                   state, cstate, settings["diffuse_bounces"])
         sidx = np.flatnonzero(shok)
         if len(sidx):
-            vis = sidx[visible(caster, bs, shp[sidx], shd[sidx], shdist[sidx])]
+            vis = sidx[visible(caster, bs, shp[sidx], shd[sidx], shdist[sidx], sidx % len(bs.lights))]
             np.add.at(emit, vis // len(bs.lights), shc[vis])
         for ch in range(3):
             layers["surface"][:, ch] += np.bincount(pixel, weights=emit[:, ch], minlength=npix)
