@@ -123,6 +123,19 @@ def _cosine_directions(nin, seed, stream, out, rng):
         rng[j] = st[0]
 
 
+ROBUST_QUANTILE = 0.99  # the tail's ratio clips each boundary point's reflected power at this quantile
+
+
+def _robust_total(power: np.ndarray) -> np.ndarray:
+    """Per channel, the sum of the points' powers (n, 3) clipped at their ROBUST_QUANTILE: rare single-point
+    spikes do not move it."""
+    live = power[power.max(axis=1) > 0]
+    if len(live) == 0:
+        return np.zeros(power.shape[1])
+    cap = np.quantile(live, ROBUST_QUANTILE, axis=0)
+    return np.minimum(live, cap[None, :]).sum(axis=0)
+
+
 def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, source, make_data, count: int,
                     generations: int, segments: int, max_reflections: int, settings: np.ndarray, seed: int):
     """Volume samples of the light scattered in `medium` and reflected by its boundary, `generations` times.
@@ -136,7 +149,7 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
     n = len(pos)
     if n == 0:
         return None
-    gens, emitted = [], []
+    gens, emitted, robust = [], [], []
     data = source
     for g in range(generations):
         w, rng = np.zeros((n, 3)), np.zeros(n, np.uint64)
@@ -153,6 +166,7 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
         t0, s0, ng0, ns0 = closest_surface_hits(caster, bs, inner, -w)
         R2 = layer_reflectance(caster, bs, inner, -w, t0, s0, ng0, ns0)
         _reflected_beams(bs.surfaces, medium, pos, nin, sid, w, L, area, bs.eps, R2, bpos, bdir, bpow)
+        rob = _robust_total(bpow)  # before the sharing spreads a spike over its neighbours
         smoothed = np.zeros_like(bpow)
         _share_among_neighbours(pos, bpow, SMOOTHING * spacing, smoothed)
         bpow = smoothed
@@ -165,6 +179,7 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
         gen = SimpleNamespace(**{f"v_{k}": v for k, v in seg.items()})
         gens.append(gen)
         emitted.append(bpow[live].sum(axis=0))
+        robust.append(rob)
         if g + 1 < generations:
             data = make_data(gen)
             if bounced_share(source, data) < MIN_SHARE:
@@ -173,9 +188,13 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
         return None
     if len(gens) >= 2:
         # the generations after the last: a geometric tail at the last ratio of emitted powers (the later
-        # generations converge to the boundary's slowest-decaying pattern), carried by the last generation
+        # generations converge to the boundary's slowest-decaying pattern), carried by the last generation. The
+        # ratio is taken from robust totals: one gather ray that meets a bounced beam head-on (peaked phase,
+        # g = 0.9) makes a point reflect tens of times more than any other, and the raw ratio let the tail
+        # multiply that spike by up to 1 / (1 - TAIL_RATIO_MAX) = 10 (bumpy sphere: one pass in 16 at 14x the
+        # others' bounced light, 4x with the robust ratio)
         with np.errstate(divide="ignore", invalid="ignore"):
-            r = np.clip(np.nan_to_num(emitted[-1] / emitted[-2]), 0.0, TAIL_RATIO_MAX)
+            r = np.clip(np.nan_to_num(robust[-1] / robust[-2]), 0.0, TAIL_RATIO_MAX)
         gens[-1].v_power = gens[-1].v_power / (1.0 - r)[None, :]
     return SimpleNamespace(**{k: np.concatenate([getattr(x, k) for x in gens])
                               for k in ("v_start", "v_dir", "v_len", "v_power", "v_area", "v_medium", "v_ends", "v_plane")})
