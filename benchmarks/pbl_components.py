@@ -32,7 +32,7 @@ def main():
     from pbvol_cli.imageio import read_exr, read_layers
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--scenes", default="bumpy_sphere,oil_glass,wax_sphere,wax_sphere_soft,milk_glass,wine_glass")
+    ap.add_argument("--scenes", default="bumpy_sphere,oil_glass,wax_sphere,wax_sphere_soft,milk_glass,wine_glass,wine_glass_soft")
     ap.add_argument("--resolution", type=int, default=48)
     ap.add_argument("--pbl-spp", type=int, default=8)
     ap.add_argument("--ref-spp", type=int, default=1024)
