@@ -166,10 +166,13 @@ def _flight_weight(media, m, beta, i, t, scatter):
 
 @njit(inline="always", cache=True)
 def _russian_roulette(misc, beta, eta_scale, depth, rng, i):
-    """True if the path survives (its throughput rescaled)."""
+    """True if the path survives (its throughput rescaled). A path of zero throughput (a black surface, a medium
+    that only absorbs) ends at once: its spectral-MIS weights would divide by zero."""
+    q = max(beta[i, 0], max(beta[i, 1], beta[i, 2])) * eta_scale[i]
+    if q <= 0.0:
+        return False
     if depth[i] < misc[M_RRDEPTH]:
         return True
-    q = max(beta[i, 0], max(beta[i, 1], beta[i, 2])) * eta_scale[i]
     if q >= 1.0:
         return True
     if rand(rng, i) >= q:

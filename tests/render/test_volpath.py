@@ -223,3 +223,19 @@ def test_time_limit_stops_after_whole_passes(tmp_path):
     assert 1 <= spp < 100000
     assert stats["paths"] == spp * 256
     assert np.all(np.isfinite(img))
+
+
+def test_black_surface_ends_paths_instead_of_dividing_by_zero(tmp_path):
+    """A black diffuse floor (albedo 0) under a medium: paths leaving it carry nothing and once reached the
+    medium's spectral-MIS weights with a zero sum (ZeroDivisionError, a traceback). They end; the image is the
+    same as with the floor's light simply absent: finite, the medium lit, the floor's own pixels black."""
+    scene = {"camera": camera((12, 12), position=(0.0, 2.0, 4.0)), "render": {"spp": 8},
+             "lights": [{"type": "environment", "radiance": 1.0}],
+             "shapes": [{"type": "quad", "center": [0, -1.0, 0], "size": [20.0, 20.0], "interface": "diffuse",
+                         "albedo": 0.0},
+                        {"type": "sphere", "radius": 0.8, "interface": "null",
+                         "medium": {"albedo": 0.9, "mean_free_path": 0.5}}]}
+    img = volpath(build(tmp_path, scene), spp=8, rr_depth=1000)
+    assert np.all(np.isfinite(img))
+    assert img[6, 6].mean() > 0.05  # the medium, lit by the sky
+    assert img[11, 0].max() == 0.0  # the floor, seen beside the sphere: black
