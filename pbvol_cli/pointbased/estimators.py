@@ -6,8 +6,8 @@ cross-section A_v (kernel 1/A_v), scattered power Phi_v^s = Phi_v sigma_s/sigma_
 - single:   sigma_s p(d_v . w_c) Phi_v exp(-sigma_t t) / A_v, for the beams whose cross-section holds P
             (t = (P - s_v) . d_v in [0, l_v], continued at the boundary): the photon-beam estimate the paper's box
             average approximates.
-- double:   sigma_s p(m . w_c) Phi^s p(d . m) exp(-sigma_t r) <1/r^2>, m = (P - x)/r, where <1/r^2> averages 1/r^2
-            over a ball of the source's extent (inv_r2_ball) rather than clamping it; segments near P are split.
+- double:   sigma_s p(m . w_c) Phi^s p(d . m) <exp(-sigma_t r)/r^2>, m = (P - x)/r, where <> averages over a ball of
+            the source's extent (attenuated_inv_r2_ball) rather than clamping 1/r^2; segments near P are split.
 - multiple: Phi^s sigma_t^3 [S_table(sigma_t (P - x), w_c) in the frame of (x, d) minus the same for the mirror
             image of (x, d) in the boundary plane nearest the sample]: the table's medium is infinite, and light
             that crosses the boundary there scatters back (index-matched furnace: 2.02 without the image, 0.98
@@ -88,22 +88,97 @@ def inv_r2_ball(r, c):
     return 1.5 / (r * c ** 3) * (r * c + 0.5 * (c * c - r * r) * math.log((c + r) / abs(c - r)))
 
 
+_GL_X = np.array([-0.9324695142031521, -0.6612093864662645, -0.2386191860831969, 0.2386191860831969,
+                  0.6612093864662645, 0.9324695142031521])
+_GL_W = np.array([0.1713244923791704, 0.3607615730481386, 0.4679139345726910, 0.4679139345726910,
+                  0.3607615730481386, 0.1713244923791704])
+
+
+@njit(inline="always", cache=True)
+def _expint_e1(x):
+    """E1(x) = int_x^inf e^-t / t dt, x > 0 (Abramowitz & Stegun 5.1.53 and 5.1.56: error < 2e-7)."""
+    if x <= 1.0:
+        return (-math.log(x) - 0.57721566 + x * (0.99999193 + x * (-0.24991055 + x * (0.05519968 + x * (
+            -0.00976004 + x * 0.00107857)))))
+    num = x * (x * (x * (x + 8.5733287401) + 18.0590169730) + 8.6347608925) + 0.2677737343
+    den = x * (x * (x * (x + 9.5733223454) + 25.6329561486) + 21.0996530827) + 3.9584969228
+    return num / den * math.exp(-x) / x
+
+
+@njit(inline="always", cache=True)
+def _exp_over_r(a, b, s):
+    """int_a^b e^(-s t) / t dt, 0 < a < b, s >= 0: Gauss-Legendre where the interval is narrow (the difference of
+    E1's would cancel), E1's otherwise."""
+    if b < 4.0 * a:
+        h, m = 0.5 * (b - a), 0.5 * (b + a)
+        acc = 0.0
+        for k in range(6):
+            t = m + h * _GL_X[k]
+            acc += _GL_W[k] * math.exp(-s * t) / t
+        return h * acc
+    if s * b < 1e-6:
+        return math.log(b / a) - s * (b - a)
+    return _expint_e1(s * a) - _expint_e1(s * b)
+
+
 @njit(cache=True)
-def _source(x, y, z, dx, dy, dz, Pr, Pg, Pb, px, py, pz, wx, wy, wz, sig_a, sig_s, kind, g, rclamp,
+def attenuated_inv_r2_ball(r, c, s):
+    """Mean of e^(-s |P - x|) / |P - x|^2 over x uniform in a ball of radius c, |P| = r (s: extinction, 1/length):
+    a point source's attenuated 1/r^2 smeared over the source's extent. Unlike e^(-s r) inv_r2_ball(r, c), it
+    keeps the kernel's integral over space (4 pi / s): smoothing 1/r^2 alone moves the near field's weight to
+    where the attenuation at the centre distance is stronger, and lost 13% of double scattering in wax when the
+    beams are 0.35 mean free paths wide. Spherical shells about P: the shell of radius t holds 4 pi t^2 of ball
+    for t < c - r, pi t (c^2 - (t - r)^2) / r for |c - r| < t < c + r."""
+    if c <= 0.0 or r > 4.0 * c:
+        return math.exp(-s * r) / (r * r) if r > 0.0 else np.inf
+    if s * (r + c) < 1e-7:
+        return inv_r2_ball(r, c)
+    if r < 1e-4 * c:  # P at the centre: 4 pi int_0^c e^-st dt
+        return 3.0 / (c ** 3) * (-math.expm1(-s * c)) / s
+    inner = 4.0 * math.pi * (-math.expm1(-s * (c - r))) / s if r < c else 0.0
+    a, b = abs(c - r), c + r
+    if r > c and s * a > 2.0:
+        # outside the ball and many mean free paths from it the closed form below cancels: with t = a + u,
+        # c^2 - (t - r)^2 = u (2c - u), integrated over the part of [0, 2c] where e^-su matters (two panels)
+        top = min(2.0 * c, 16.0 / s)
+        acc = 0.0
+        for lo_, hi_ in ((0.0, 0.25 * top), (0.25 * top, top)):
+            h, m = 0.5 * (hi_ - lo_), 0.5 * (hi_ + lo_)
+            for k in range(6):
+                u = m + h * _GL_X[k]
+                acc += h * _GL_W[k] * u * (2.0 * c - u) / (a + u) * math.exp(-s * u)
+        shell = math.pi / r * math.exp(-s * a) * acc
+        return 3.0 / (4.0 * math.pi * c ** 3) * shell
+    ea, eb = math.exp(-s * a), math.exp(-s * b)
+    # (pi / r) int_a^b [(c^2 - r^2)/t - t + 2 r] e^-st dt
+    lin = (a / s + 1.0 / (s * s)) * ea - (b / s + 1.0 / (s * s)) * eb
+    const = (ea - eb) / s
+    cap = (c * c - r * r) * _exp_over_r(a, b, s) if a > 0.0 else 0.0
+    shell = math.pi / r * (cap - lin + 2.0 * r * const)
+    return 3.0 / (4.0 * math.pi * c ** 3) * (inner + shell)
+
+
+@njit(cache=True)
+def _source(x, y, z, dx, dy, dz, Pr, Pg, Pb, px, py, pz, wx, wy, wz, sig_a, sig_s, kind, g, rclamp, extent,
             do_double, do_multiple, tabs, out_d, out_m, nx, ny, nz, q):
-    """Double and multiple scattering at P from a point source of scattered power (Pr, Pg, Pb) along d; (n, q):
-    the boundary plane n . x = q nearest the source (n toward it; q = inf: none), for the multiple term's image."""
+    """Double and multiple scattering at P from a point source of scattered power (Pr, Pg, Pb) along d, smeared over
+    a ball of radius `extent` (the beam's radius or half its length) for double scattering; (n, q): the boundary
+    plane n . x = q nearest the source (n toward it; q = inf: none), for the multiple term's image. The ball
+    reaches no further than the boundary (a ball poking out of the medium puts part of the source's light where
+    no camera point gathers it: 7% of wax's double scattering under beams 0.35 mean free paths wide) and is at
+    least rclamp wide."""
     align = 1.0
     rx, ry, rz = px - x, py - y, pz - z
     r2 = rx * rx + ry * ry + rz * rz
     r = math.sqrt(r2)
     if do_double and r > 0.0:
+        c = max(rclamp, min(extent, q - (nx * x + ny * y + nz * z))) if q < np.inf else max(rclamp, extent)
         mx, my, mz = rx / r, ry / r, rz / r
         lobe = align * phase_eval(kind, g, dx * mx + dy * my + dz * mz) + (1.0 - align) * INV_4PI
-        f = phase_eval(kind, g, mx * wx + my * wy + mz * wz) * lobe * inv_r2_ball(r, rclamp)
-        out_d[0] += sig_s[0] * Pr * f * math.exp(-(sig_a[0] + sig_s[0]) * r)
-        out_d[1] += sig_s[1] * Pg * f * math.exp(-(sig_a[1] + sig_s[1]) * r)
-        out_d[2] += sig_s[2] * Pb * f * math.exp(-(sig_a[2] + sig_s[2]) * r)
+        f = phase_eval(kind, g, mx * wx + my * wy + mz * wz) * lobe
+        out_d[0] += sig_s[0] * Pr * f * attenuated_inv_r2_ball(r, c, sig_a[0] + sig_s[0])
+        out_d[1] += sig_s[1] * Pg * f * attenuated_inv_r2_ball(r, c, sig_a[1] + sig_s[1])
+        out_d[2] += sig_s[2] * Pb * f * attenuated_inv_r2_ball(r, c, sig_a[2] + sig_s[2])
     if do_multiple:
         # the table's infinite medium, less a mirror-image source (mirrored lobe) behind the boundary plane: the
         # light that in the infinite medium would cross the boundary and scatter back (method of images with the
@@ -142,14 +217,14 @@ def _segment_source(i, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v
         if n_ms <= 1:
             _source(v_centre[i, 0], v_centre[i, 1], v_centre[i, 2], v_dir[i, 0], v_dir[i, 1], v_dir[i, 2],
                     v_scat[i, 0], v_scat[i, 1], v_scat[i, 2], px, py, pz, wx, wy, wz, sig_a, sig_s, kind, g,
-                    max(rclamp, max(0.5 * ln, v_rb[i])), do_double and far, do_multiple, tabs, out_d, out_m,
+                    rclamp, max(0.5 * ln, v_rb[i]), do_double and far, do_multiple, tabs, out_d, out_m,
                     v_plane[i, 0],
                     v_plane[i, 1], v_plane[i, 2], v_plane[i, 3])
             return
         if far and do_double:
             _source(v_centre[i, 0], v_centre[i, 1], v_centre[i, 2], v_dir[i, 0], v_dir[i, 1], v_dir[i, 2],
                     v_scat[i, 0], v_scat[i, 1], v_scat[i, 2], px, py, pz, wx, wy, wz, sig_a, sig_s, kind, g,
-                    max(rclamp, max(0.5 * ln, v_rb[i])), True, False, tabs, out_d, out_m, v_plane[i, 0],
+                    rclamp, max(0.5 * ln, v_rb[i]), True, False, tabs, out_d, out_m, v_plane[i, 0],
                     v_plane[i, 1], v_plane[i, 2], v_plane[i, 3])
         _split_source(i, n_ms, v_start, v_dir, v_len, v_power, v_rb, v_plane, sig_a, sig_s, kind, g, px, py, pz, wx,
                       wy, wz,
@@ -186,7 +261,7 @@ def _split_source(i, n, v_start, v_dir, v_len, v_power, v_rb, v_plane, sig_a, si
         tm = 0.5 * (t0 + t1)
         _source(v_start[i, 0] + tm * v_dir[i, 0], v_start[i, 1] + tm * v_dir[i, 1], v_start[i, 2] + tm * v_dir[i, 2],
                 v_dir[i, 0], v_dir[i, 1], v_dir[i, 2], pw[0], pw[1], pw[2], px, py, pz, wx, wy, wz, sig_a, sig_s,
-                kind, g, max(rclamp, max(0.5 * (t1 - t0), v_rb[i])), do_double, do_multiple, tabs, out_d, out_m,
+                kind, g, rclamp, max(0.5 * (t1 - t0), v_rb[i]), do_double, do_multiple, tabs, out_d, out_m,
                 v_plane[i, 0],
                     v_plane[i, 1], v_plane[i, 2], v_plane[i, 3])
 
