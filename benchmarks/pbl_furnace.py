@@ -33,7 +33,10 @@ def main():
                     "1: compare with --orders)")
     ap.add_argument("--orders", action="store_true", help="also volpath --orders 0, 1, 2, 3+ (256 spp), for the "
                     "layers surface, single, double, multiple (+ bounced)")
+    ap.add_argument("--pbl", default="{}", help='[render.pbl] settings as JSON, e.g. \'{"clamp": 0.005}\'')
     args = ap.parse_args()
+    import json
+
     tmp = Path(tempfile.mkdtemp(prefix="pbvol-furnace-"))
     for eta in (float(x) for x in args.eta.split(",")):
         for mfp in (float(x) for x in args.mfp.split(",")):
@@ -41,7 +44,7 @@ def main():
                      "medium": {"albedo": args.albedo, "mean_free_path": mfp, "g": args.g}}
             if eta != 1.0:
                 shape["eta"] = eta
-            scene = {"camera": camera((16, 16), position=(0, 0, 3.0), fov=30), "render": {"spp": 8},
+            scene = {"camera": camera((16, 16), position=(0, 0, 3.0), fov=30), "render": {"spp": 8, "pbl": json.loads(args.pbl)},
                      "lights": [{"type": "environment", "radiance": 1.0}], "shapes": [shape]}
             p = write_scene(tmp, scene)
             render_scene(p, tmp / "o.exr", RenderOptions(method="pbl", cache_dir=tmp, quiet=True))

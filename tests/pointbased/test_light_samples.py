@@ -126,3 +126,37 @@ def test_surface_samples_receive_indirect_light_from_a_diffuse_floor(tmp_path):
     assert abs(irr.mean() - expected) < 4 * se, (irr.mean(), expected, se)
     # and the indirect light enters as beams: power in from below the equator
     assert ls.v_power[ls.v_dir[:, 1] > 0.5].sum() > 0
+
+
+@pytest.mark.parametrize("angle", [20.0, 60.0])
+def test_beams_inside_a_glass_wall_reflect_by_fresnel_choice(angle):
+    """_cross inside a transparent layer (u >= 0): a beam leaving glass (eta 1.5) for air is reflected with
+    probability F, its power unchanged (beyond the critical angle, 41.8 deg, always: light guided down a glass
+    wall); transmitted otherwise, power unchanged; the first crossing (u < 0) transmits with power x (1 - F)."""
+    from pbvol_cli.geometry.scene_build import DIELECTRIC
+    from pbvol_cli.physics.fresnel import fresnel_dielectric
+    from pbvol_cli.pointbased.light_samples import _cross
+
+    surfaces = np.zeros((1, 8))
+    surfaces[0, :5] = [DIELECTRIC, -1, -1, 1.5, 1.0]  # glass inside, air outside, no medium either side
+    a = math.radians(angle)
+    F = fresnel_dielectric(math.cos(a), 1.0 / 1.5)[0]
+    for u, reflected in ((-1.0, False), (0.5 * F, True), (0.999 if F >= 1.0 else 0.5 * (1 + F), F >= 1.0)):
+        pos = np.zeros((1, 3))
+        d = np.array([[math.sin(a), 0.0, math.cos(a)]])  # toward the surface z = 1 from inside (normal +z)
+        power = np.ones((1, 3))
+        medium, cosx, alive, bn = np.full(1, -1), np.zeros(1), np.ones(1, np.bool_), np.zeros((1, 3))
+        ng = np.array([[0.0, 0.0, 1.0]])
+        t = np.array([1.0 / math.cos(a)])
+        _cross(surfaces, pos, d, power, medium, cosx, ng, ng.copy(), t, np.zeros(1, np.int64), 1e-6, alive, bn,
+               np.array([u]))
+        if u < 0 and F >= 1.0:
+            assert not alive[0]  # the first crossing never reflects inward
+            continue
+        assert alive[0]
+        if reflected:
+            assert d[0, 2] == pytest.approx(-math.cos(a)) and pos[0, 2] < 1.0
+            assert power[0, 0] == 1.0
+        else:
+            assert d[0, 2] > 0 and pos[0, 2] > 1.0
+            assert power[0, 0] == pytest.approx(1.0 - F if u < 0 else 1.0)
