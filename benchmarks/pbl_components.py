@@ -7,7 +7,8 @@
 For each scene: one pbl render (its layers single, double, multiple, bounced) and volpath --orders 1, 2 and 3+,
 each as two halves with different seeds (kept in the cache). Printed per component and channel: the ratio of image means pbl / volpath (the
 bias that survives averaging) and the relMSE of pbl against the volpath mean, next to the relMSE of the
-reference's own noise (a quarter of its halves' relMSE against each other). Light that reaches the medium only
+reference's own noise (a quarter of its halves' relMSE against each other) and the ratio of the halves' means
+(a reference whose halves differ by more than a few % is not converged: its order's paths are heavy-tailed). Light that reaches the medium only
 through a diffuse surface (light -> table -> medium) is not in pbl's light samples: scenes with a table show it.
 """
 
@@ -43,7 +44,8 @@ def main():
     out = args.cache / "components"
     out.mkdir(parents=True, exist_ok=True)
     print(f"{res}, pbl {args.pbl_spp} spp, volpath --orders at {args.ref_spp} spp (two halves), {args.threads} threads")
-    print(f"{'scene':<14} {'component':<12} {'mean ratio pbl/vp (R G B)':<29} {'relMSE':>8} {'ref noise':>9}")
+    print(f"{'scene':<14} {'component':<12} {'mean ratio pbl/vp (R G B)':<29} {'relMSE':>8} {'ref noise':>9} "
+          f"{'halves R G B':>14}")
     for name in [s for s in args.scenes.split(",") if s]:
         scene = ROOT / "configs" / f"{name}.toml"
         pbl_out = out / f"{name}_pbl.exr"
@@ -73,8 +75,10 @@ def main():
             ref = 0.5 * (h0 + h1)
             noise = rel_mse(h0, h1) / 4.0
             ratio = mine.mean((0, 1)) / np.maximum(ref.mean((0, 1)), 1e-30)
+            # the halves' means apart by more than a few % say the reference is not converged (heavy tails)
+            halves = h0.mean((0, 1)) / np.maximum(h1.mean((0, 1)), 1e-30)
             print(f"{name:<14} {comp:<12} {' '.join(f'{r:.3f}' for r in ratio):<29} "
-                  f"{rel_mse(mine, ref):>8.4f} {noise:>9.5f}", flush=True)
+                  f"{rel_mse(mine, ref):>8.4f} {noise:>9.5f} {' '.join(f'{h:.2f}' for h in halves):>14}", flush=True)
 
 
 if __name__ == "__main__":
