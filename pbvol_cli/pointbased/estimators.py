@@ -164,15 +164,18 @@ def _source(x, y, z, dx, dy, dz, Pr, Pg, Pb, px, py, pz, wx, wy, wz, sig_a, sig_
     """Double and multiple scattering at P from a point source of scattered power (Pr, Pg, Pb) along d, smeared over
     a ball of radius `extent` (the beam's radius or half its length) for double scattering; (n, q): the boundary
     plane n . x = q nearest the source (n toward it; q = inf: none), for the multiple term's image. The ball
-    reaches no further than the boundary (a ball poking out of the medium puts part of the source's light where
-    no camera point gathers it: 7% of wax's double scattering under beams 0.35 mean free paths wide) and is at
-    least rclamp wide."""
+    shrinks to the source's depth below that plane, down to half its radius (a ball poking out of the medium puts
+    part of the source's light where no camera point gathers it: 7% of wax's double scattering under beams 0.35
+    mean free paths wide; shrunk further, to rclamp, the bounced layer's gather on the boundary itself met 100x
+    spikes), and is at least rclamp wide."""
     align = 1.0
     rx, ry, rz = px - x, py - y, pz - z
     r2 = rx * rx + ry * ry + rz * rz
     r = math.sqrt(r2)
     if do_double and r > 0.0:
-        c = max(rclamp, min(extent, q - (nx * x + ny * y + nz * z))) if q < np.inf else max(rclamp, extent)
+        c = max(rclamp, extent)
+        if q < np.inf:
+            c = max(rclamp, min(extent, max(q - (nx * x + ny * y + nz * z), 0.5 * extent)))
         mx, my, mz = rx / r, ry / r, rz / r
         lobe = align * phase_eval(kind, g, dx * mx + dy * my + dz * mz) + (1.0 - align) * INV_4PI
         f = phase_eval(kind, g, mx * wx + my * wy + mz * wz) * lobe
