@@ -39,7 +39,7 @@ COMPONENTS = ("single", "double", "multiple", "bounced")
 def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse):
     """Medium contribution of ray i over [0, tseg[i]] into out[i, component, channel]. A ray after a diffuse bounce
     (diffuse[i] > 0) takes settings[7] random points for every component (sec. 3.6: averaged over the bounces)."""
-    tree, v_start, v_dir, v_len, v_power, v_area, v_centre, v_scat, v_rb, tabs, v_ends, v_plane = md
+    tree, v_start, v_dir, v_len, v_power, v_area, v_centre, v_scat, v_rb, tabs, v_ends, v_plane, r_near = md
     sig_a, sig_s = med[0:3], med[3:6]
     kind, g = int(med[6]), med[7]
     kmax, cut_size, rclamp, k2 = int(settings[0]), int(settings[1]), settings[2], int(settings[6])
@@ -75,7 +75,7 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse):
             else:
                 double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a, sig_s,
                                 kind, g,
-                                px, py, pz, wx, wy, wz, cut_size, rclamp, do_d, do_m, tabs, o, o3, rng, i)
+                                px, py, pz, wx, wy, wz, cut_size, rclamp, r_near, do_d, do_m, tabs, o, o3, rng, i)
             for c in range(3):
                 w = beta[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * d) / (pdf * n)
                 if comp == 0:
@@ -240,6 +240,9 @@ def bounced_share(md, mdb) -> float:
     return float(mdb.scat.sum()) / a if a > 0 else 0.0
 
 
+NEAR_FIELD_RADII = 3.0  # double scattering's near field (summed exactly), in median beam radii
+
+
 class MediumData:
     """A medium's light samples prepared for the kernels: octree, per-sample arrays, its three tables."""
 
@@ -269,13 +272,15 @@ class MediumData:
         box_lo = np.minimum(first, end) - rb[:, None]
         box_hi = np.maximum(first, end) + rb[:, None]
         self.tree = build_octree(self.centre, box_lo, box_hi, self.dir, self.scat)
+        # double scattering's near field, summed over every sample (estimators.double_multiple): a few beam radii
+        self.r_near = NEAR_FIELD_RADII * float(np.median(self.rb)) if len(self.rb) else 0.0
         # tables: MSTable objects, or their render_args() already expanded (shared by every pass's samples)
         self.tabs = tuple(t if isinstance(t, tuple) else t.render_args() for t in tables)
         self.count = int(sel.sum())
 
     def kernel_tuple(self):
         return (self.tree.arrays(), self.start, self.dir, self.len, self.power, self.area, self.centre, self.scat,
-                self.rb, self.tabs, self.ends, self.plane)
+                self.rb, self.tabs, self.ends, self.plane, self.r_near)
 
 
 def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, settings: dict, threads: int,
