@@ -240,7 +240,23 @@ def bounced_share(md, mdb) -> float:
     return float(mdb.scat.sum()) / a if a > 0 else 0.0
 
 
-NEAR_FIELD_RADII = 3.0  # double scattering's near field (summed exactly), in median beam radii
+NEAR_FIELD_RADII = 3.0  # double scattering's near field (summed exactly): at most this many median beam radii,
+NEAR_FIELD_COUNT = 16.0  # and holding about this many segments (dense samples: the bumpy sphere's 900k, 3.6x slower)
+
+
+def near_field_radius(start, dirs, length, rb) -> float:
+    """Radius R of double scattering's exactly summed near field (estimators.double_multiple): NEAR_FIELD_RADII
+    median beam radii, smaller where the segments are so dense that more than NEAR_FIELD_COUNT would pass within R
+    of a point (segments per volume n, median length l: n (pi R^2 l + 4/3 pi R^3), the volume within R of a
+    segment; the volume is the samples' bounding box, an over-estimate)."""
+    if len(length) == 0:
+        return 0.0
+    ends = np.concatenate([start, start + length[:, None] * dirs])
+    volume = float(np.prod(np.maximum(ends.max(axis=0) - ends.min(axis=0), 1e-9)))
+    n, ell = len(length) / volume, float(np.median(length))
+    roots = np.roots([4.0 / 3.0 * np.pi * n, np.pi * n * ell, 0.0, -NEAR_FIELD_COUNT])
+    r_count = float(max(r.real for r in roots if abs(r.imag) < 1e-9 * max(1.0, abs(r)) and r.real > 0))
+    return min(NEAR_FIELD_RADII * float(np.median(rb)), r_count)
 
 
 class MediumData:
@@ -272,8 +288,7 @@ class MediumData:
         box_lo = np.minimum(first, end) - rb[:, None]
         box_hi = np.maximum(first, end) + rb[:, None]
         self.tree = build_octree(self.centre, box_lo, box_hi, self.dir, self.scat)
-        # double scattering's near field, summed over every sample (estimators.double_multiple): a few beam radii
-        self.r_near = NEAR_FIELD_RADII * float(np.median(self.rb)) if len(self.rb) else 0.0
+        self.r_near = near_field_radius(self.start, self.dir, self.len, self.rb)
         # tables: MSTable objects, or their render_args() already expanded (shared by every pass's samples)
         self.tabs = tuple(t if isinstance(t, tuple) else t.render_args() for t in tables)
         self.count = int(sel.sum())
