@@ -14,7 +14,8 @@ cross-section A_v (kernel 1/A_v), scattered power Phi_v^s = Phi_v sigma_s/sigma_
             with it); what a dielectric boundary reflects is the bounced term (bounced.py).
 Double and multiple sum over all volume samples by a stochastic light cut (double_multiple): a few nodes of the
 octree, each represented by one sample drawn at random and weighted by its inverse probability, so the sum is
-unbiased whatever the cut; the cut only sets the noise.
+unbiased whatever the cut; the cut only sets the noise. Double scattering's near field (near_weight: within a few
+beam radii of P) is summed over every sample there instead (_near_field): it ruled the cut's noise.
 """
 
 from __future__ import annotations
