@@ -35,6 +35,29 @@ INV_4PI = 1.0 / (4.0 * math.pi)
 END_EXTENSION = 3.0  # kernel radii by which segments on the boundary are continued (single scattering)
 
 
+LEAF_WALK_STACK = 128  # depth-first stack of the octree walks (8 children a level: ample)
+
+
+@njit(inline="always", cache=True)
+def next_leaf(tree, stack, sp, px, py, pz, margin):
+    """The octree walk shared by single scattering and double's near field: pops the stack (its size in sp[0],
+    start with the root on it) until a leaf whose box, widened by margin, holds P, and returns it; -1 when done."""
+    lo, hi, first_child, n_children = tree[1], tree[2], tree[6], tree[7]
+    while sp[0] > 0:
+        sp[0] -= 1
+        nd = stack[sp[0]]
+        if (px < lo[nd, 0] - margin or px > hi[nd, 0] + margin or py < lo[nd, 1] - margin
+                or py > hi[nd, 1] + margin or pz < lo[nd, 2] - margin or pz > hi[nd, 2] + margin):
+            continue
+        if first_child[nd] < 0:
+            return nd
+        for ch in range(first_child[nd], first_child[nd] + n_children[nd]):
+            if sp[0] < stack.shape[0]:
+                stack[sp[0]] = ch
+                sp[0] += 1
+    return -1
+
+
 @njit(cache=True)
 def single_scattering(tree, v_start, v_dir, v_len, v_power, v_area, v_ends, sig_a, sig_s, kind, g, px, py, pz,
                       wx, wy, wz, out):
@@ -43,23 +66,14 @@ def single_scattering(tree, v_start, v_dir, v_len, v_power, v_area, v_ends, sig_
     the boundary otherwise misses the neighbouring beams whose discs reach it before they enter (after they
     leave), an 11% deficit in dense media (wax, 8 mean free paths across); continued, the kernel average is
     exact for a flat boundary, and the camera points are inside the medium anyway."""
-    order, lo, hi = tree[0], tree[1], tree[2]
-    first_child, n_children, start, end = tree[6], tree[7], tree[8], tree[9]
-    stack = np.empty(128, np.int64)
-    sp = 1
+    order, start, end = tree[0], tree[8], tree[9]
+    stack = np.empty(LEAF_WALK_STACK, np.int64)
+    sp = np.ones(1, np.int64)
     stack[0] = 0
-    while sp > 0:
-        sp -= 1
-        nd = stack[sp]
-        if (px < lo[nd, 0] or px > hi[nd, 0] or py < lo[nd, 1] or py > hi[nd, 1] or pz < lo[nd, 2]
-                or pz > hi[nd, 2]):
-            continue
-        if first_child[nd] >= 0:
-            for ch in range(first_child[nd], first_child[nd] + n_children[nd]):
-                if sp < 128:
-                    stack[sp] = ch
-                    sp += 1
-            continue
+    while True:
+        nd = next_leaf(tree, stack, sp, px, py, pz, 0.0)
+        if nd < 0:
+            break
         for k in range(start[nd], end[nd]):
             i = order[k]
             qx, qy, qz = px - v_start[i, 0], py - v_start[i, 1], pz - v_start[i, 2]
@@ -518,25 +532,16 @@ def _near_field(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_
     """Double scattering's near part (near_weight with split = r_near) from every sample whose segment passes
     within r_near of P: the octree's boxes widened by r_near, walked like single scattering's. Returns the
     samples evaluated."""
-    order, lo, hi = tree[0], tree[1], tree[2]
-    first_child, n_children, start, end = tree[6], tree[7], tree[8], tree[9]
-    stack = np.empty(128, np.int64)
-    sp = 1
+    order, start, end = tree[0], tree[8], tree[9]
+    stack = np.empty(LEAF_WALK_STACK, np.int64)
+    sp = np.ones(1, np.int64)
     stack[0] = 0
     n = 0
     R = r_near
-    while sp > 0:
-        sp -= 1
-        nd = stack[sp]
-        if (px < lo[nd, 0] - R or px > hi[nd, 0] + R or py < lo[nd, 1] - R or py > hi[nd, 1] + R
-                or pz < lo[nd, 2] - R or pz > hi[nd, 2] + R):
-            continue
-        if first_child[nd] >= 0:
-            for ch in range(first_child[nd], first_child[nd] + n_children[nd]):
-                if sp < 128:
-                    stack[sp] = ch
-                    sp += 1
-            continue
+    while True:
+        nd = next_leaf(tree, stack, sp, px, py, pz, R)
+        if nd < 0:
+            break
         for k in range(start[nd], end[nd]):
             i = order[k]
             qx, qy, qz = px - v_start[i, 0], py - v_start[i, 1], pz - v_start[i, 2]
