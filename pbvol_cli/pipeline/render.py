@@ -247,7 +247,8 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
     prog, update = progress_bar(opts.quiet, f"pbl {W}x{H} {spp} spp")
     settings = {"kmax": pbl.kmax, "kmax_scattered": pbl.kmax_scattered, "cut_size": pbl.cut_size, "clamp": pbl.clamp,
                 "components": comps, "max_split_depth": pbl.max_split_depth, "roulette": pbl.roulette,
-                "diffuse_bounces": pbl.diffuse_bounces, "kmax_diffuse": pbl.kmax_diffuse}
+                "diffuse_bounces": pbl.diffuse_bounces, "kmax_diffuse": pbl.kmax_diffuse,
+                "surface_paths": pbl.surface_paths}
     with prog:
         img, layers, stats = render_pbl(built, media_for_pass, spp, seed, settings, threads, update)
     stages["render_s"] = stats["time_s"]

@@ -300,12 +300,16 @@ class MediumData:
 
 def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, settings: dict, threads: int,
                progress=None):
-    """Renders spp passes of one camera path per pixel; pass p uses the light samples media_for_pass(p)
-    ({medium: (MediumData of the lights' samples, MediumData of the bounced samples or None)}). Returns (image (H,
-                                                                                                         W, 3),
-                                                                                                         layers {name: (H, W, 3)}, stats)."""
+    """Renders spp passes; pass p uses the light samples media_for_pass(p) ({medium: (MediumData of the lights'
+    samples, MediumData of the bounced samples or None)}). A pass traces settings["surface_paths"] (k) camera
+    paths per pixel: all of them shade surfaces, and one of them, chosen uniformly at random per pixel and pass,
+    also evaluates the medium, its medium terms weighted by k. The pixel's estimate stays unbiased and the
+    medium's cost per pass is that of one path, while the surfaces' noise (path traced like volpath's, and most
+    of pbl's image noise: 91 % on the oil glass, half on the milk glass) falls k times. Returns (image (H, W, 3),
+    layers {name: (H, W, 3)}, stats)."""
     W, H = int(bs.camera[12]), int(bs.camera[13])
     npix = W * H
+    k = int(settings.get("surface_paths", 1))
     sett = np.array([settings["kmax"], settings["cut_size"], settings["clamp"],
                      float("single" in settings["components"]), float("double" in settings["components"]),
                      float("multiple" in settings["components"]), settings["kmax_scattered"],
@@ -314,25 +318,32 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, settings: di
     pool = ThreadPoolExecutor(threads) if threads > 1 else None
     layers = {name: np.zeros((npix, 3)) for name in (*COMPONENTS, "surface")}
     t0 = time.perf_counter()
-    total = npix * spp
+    per_pass = npix * k
+    total = per_pass * spp
     chunk = 1 << 18
     for p in range(spp):
         media_data = media_for_pass(p)
-        for c0 in range(0, npix, chunk):
-            n = min(chunk, npix - c0)
-            _trace_batch(bs, caster, pool, threads, media_data, seed, p * npix + c0, n, npix, sett, settings, layers)
+        # which of the pixel's k paths evaluates the medium in this pass (k = 1: every path, as ever)
+        chosen = np.random.default_rng([seed, p, 0x5EC7]).integers(0, k, npix) if k > 1 else np.zeros(npix, np.int64)
+        for c0 in range(0, per_pass, chunk):
+            n = min(chunk, per_pass - c0)
+            _trace_batch(bs, caster, pool, threads, media_data, seed, p * per_pass + c0, n, npix, sett, settings,
+                         layers, chosen, k)
             if progress is not None:
-                progress(p * npix + c0 + n, total)
+                progress(p * per_pass + c0 + n, total)
     caster.close()
     if pool is not None:
         pool.shutdown()
-    out = {name: (v / spp).reshape(H, W, 3) for name, v in layers.items()}
+    out = {name: (v / (spp * k)).reshape(H, W, 3) for name, v in layers.items()}
     image = sum(out.values())
     return image, out, {"time_s": time.perf_counter() - t0, "spp": spp}
 
 
-def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, sett, settings, layers):
-    """n camera paths starting at global sample index `done`, traced to the end, added into layers."""
+def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, sett, settings, layers, chosen=None,
+                 kpaths=1):
+    """n camera paths starting at global path index `done`, traced to the end, added into layers. Path g is
+    camera sample g // npix of pixel g % npix; it evaluates the medium (weight kpaths) where its sample's index
+    within its pass, (g // npix) % kpaths, is chosen[pixel]."""
     sett_b = sett.copy()
     # the bounced samples' single, double and multiple all make the bounced layer (tests may take a subset)
     sett_b[3:6] = settings.get("bounced_estimators", (1.0, 1.0, 1.0))
@@ -341,6 +352,8 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
     pixel = np.zeros(n, np.int64)
     rng = np.zeros(n, np.uint64)
     generate_camera_rays(bs.camera, seed, done, n, pos, dirs, pixel, rng)
+    gidx = np.arange(done, done + n, dtype=np.int64)
+    evm = np.ones(n, np.bool_) if chosen is None else ((gidx // npix) % kpaths == chosen[pixel])  # evaluates the medium
     beta = np.ones((n, 3))
     roulette_rng = np.random.default_rng([seed, done])
     medium = np.full(n, -1, np.int64)
@@ -356,14 +369,15 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
         for m in np.unique(medium[inside]):
             sub = inside[medium[inside] == m]
             md, mdb = media_data.get(int(m), (None, None))
-            if md is not None and md.count:
+            ms = sub[evm[sub]]  # the paths that evaluate the medium in this pass
+            if md is not None and md.count and len(ms):
                 # weak branches (internal reflections) are evaluated with probability beta_max / roulette,
                 # their weight divided by it: unbiased, and most of the cost was in branches of weight < 0.01
-                q = np.minimum(1.0, beta[sub].max(axis=1) / max(settings["roulette"], 1e-300))
-                keep = roulette_rng.random(len(sub)) < q
-                ev = sub[keep]
+                q = np.minimum(1.0, beta[ms].max(axis=1) / max(settings["roulette"], 1e-300))
+                keep = roulette_rng.random(len(ms)) < q
+                ev = ms[keep]
                 beta_ev = beta.copy()
-                beta_ev[ev] /= q[keep, None]
+                beta_ev[ev] /= (q[keep] / kpaths)[:, None]
                 eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, bs.media[m], md.kernel_tuple(),
                               sett, contrib, state >> 2)
                 if mdb is not None and mdb.count:
@@ -403,5 +417,5 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
         keep = cok & (cb.max(axis=1) > 1e-5)
         parent = np.repeat(np.arange(k), 2)[keep]
         pos, dirs, beta, medium, state = cp[keep], cd[keep], cb[keep], cm[keep], cstate[keep]
-        depth, pixel = depth[parent] + 1, pixel[parent]
+        depth, pixel, evm = depth[parent] + 1, pixel[parent], evm[parent]
         rng = rng[parent] ^ (np.uint64(0x9E37) * (keep.nonzero()[0] % 2 + 1).astype(np.uint64))
