@@ -129,6 +129,8 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
         "orders": opts.orders or "all", "max_depth": max_depth,
         **{f"stage_{k}": round(v, 4) for k, v in stages.items()},
     }
+    if opts.method == "pbl":  # a pass's camera paths per pixel: the surfaces saw spp x this many
+        meta["surface_paths"] = scene.render.pbl.surface_paths
     write_exr(out_path, img.astype(np.float32), meta,
               layers={k: v.astype(np.float32) for k, v in layers.items()} if layers else None)
     if preview is not None:

@@ -177,6 +177,7 @@ def test_place_samples_caches_and_render_writes_component_layers(tmp_path):
     assert layers["single"].sum() > 0 and layers["double"].sum() > 0
     assert layers["multiple"].sum() == 0 and layers["bounced"].sum() == 0
     assert meta["method"] == "pbl" and meta["stage_samples_reused"] == 1.0 and "stage_render_s" in meta
+    assert meta["surface_paths"] == 8
     assert "stages: light samples" in r.stdout and "camera pass" in r.stdout  # each stage's time and memory
     bad = runner.invoke(app, ["render", str(path), "--method", "pbl", "-o", str(out), "--components", "triple",
                               "--cache-dir", str(tmp_path / "c")])
