@@ -223,7 +223,11 @@ def _source(x, y, z, dx, dy, dz, Pr, Pg, Pb, px, py, pz, wx, wy, wz, sig_a, sig_
             st = sig_a[c] + sig_s[c]
             v = scaled_lookup(tabs[c], Pc, st, rx, ry, rz, dx, dy, dz, wx, wy, wz)
             if image:
-                v -= scaled_lookup(tabs[c], Pc, st, rx - h * nx, ry - h * ny, rz - h * nz, ex, ey, ez, wx, wy, wz)
+                # the half-space's response to a source is never negative: where the image's (mirrored) lobe
+                # sends more toward P than the source's own, or P lies beyond the source's plane (concave
+                # boundaries), the difference is the method's artefact, not light taken away
+                v = max(v - scaled_lookup(tabs[c], Pc, st, rx - h * nx, ry - h * ny, rz - h * nz, ex, ey, ez, wx,
+                                          wy, wz), 0.0)
             out_m[c] += v
 
 

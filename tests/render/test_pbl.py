@@ -342,3 +342,48 @@ def test_surface_paths_keep_the_image_and_cut_the_surfaces_noise(tmp_path):
     var4 = stats[4][0].var(axis=0, ddof=1).mean()
     print("surface variance k=1, k=4:", var1, var4)
     assert var4 < 0.5 * var1, (var1, var4)
+
+
+def test_multiple_term_of_a_source_with_its_image_is_never_negative():
+    """The multiple term of one source is the table's value less its mirror image's (method of images): where the
+    image's mirrored lobe sends more toward P than the source's own, or P lies beyond the source's boundary plane
+    (a concave boundary), the difference is negative, an artefact (the half-space's response to a source is never
+    negative); it is taken as 0 (bumpy sphere: 712 of 9216 pixels of the multiple layer were negative at 1 spp,
+    a sum of -62 against +226). Where the difference is positive it is kept as it is."""
+    from pbvol_cli.multiple_scattering.layout import Layout
+    from pbvol_cli.multiple_scattering.table import TableSettings, build_table, scaled_lookup
+    from pbvol_cli.pointbased.estimators import _source
+
+    lay = Layout(extent=10.0, n_rho=16, n_z=32, n_theta=9, n_phi=9, kill_radius=20.0)
+    table, _ = build_table(0.9, 0.7, 1, TableSettings(particles=40000, layout=lay, sh_order=8))
+    tab = table.render_args()
+    tabs = (tab, tab, tab)
+    sig_a, sig_s = np.full(3, 0.1), np.full(3, 0.9)
+    rng = np.random.default_rng(3)
+    n_neg = n_pos = 0
+    for _ in range(400):
+        # source 0.1-1 below the boundary plane z = 0 (the medium is z < 0), heading anywhere
+        x = np.array([0.0, 0.0, -rng.uniform(0.1, 1.0)])
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        p = rng.uniform(-1.5, 1.5, 3)
+        p[2] = rng.uniform(-2.0, 0.5)  # some points beyond the plane
+        w = rng.normal(size=3)
+        w /= np.linalg.norm(w)
+        out_d, out_m = np.zeros(3), np.zeros(3)
+        # the plane n . y = q, n = +z (outward, from the source to the plane), q = 0: the image is at x + 2 (q - n.x) n
+        _source(x[0], x[1], x[2], d[0], d[1], d[2], 1.0, 1.0, 1.0, p[0], p[1], p[2], w[0], w[1], w[2], sig_a, sig_s,
+                1, 0.7, 0.02, 0.05, False, True, tabs, out_d, out_m, 0.0, 0.0, 1.0, 0.0, 0.0)
+        r = p - x
+        h = 2.0 * (0.0 - x[2])
+        e = np.array([d[0], d[1], -d[2]])
+        plain = (scaled_lookup(tab, 1.0, 1.0, r[0], r[1], r[2], d[0], d[1], d[2], w[0], w[1], w[2])
+                 - scaled_lookup(tab, 1.0, 1.0, r[0], r[1], r[2] - h, e[0], e[1], e[2], w[0], w[1], w[2]))
+        assert np.all(out_m >= 0.0)
+        if plain > 0:
+            n_pos += 1
+            assert out_m[0] == pytest.approx(plain, rel=1e-9)
+        else:
+            n_neg += 1
+            assert out_m[0] == 0.0
+    assert n_neg > 10 and n_pos > 10  # both cases met
