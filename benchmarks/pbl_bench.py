@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmark of the point-based method against the reference path tracer, per example scene.
 
-    .venv/bin/python benchmarks/pbl_bench.py [--scenes a,b] [--resolution 96] [--pbl-spp 4[,16]] [--volpath-spp 16]
+    .venv/bin/python benchmarks/pbl_bench.py [--scenes a,b] [--resolution 96] [--pbl-spp 4[,16]] [--pbl-seeds 1[,2,..]] [--volpath-spp 16]
                                             [--ref-spp 2048] [--ref-spp-for wax_sphere=32768] [--threads 2]
                                             [--cache DIR] [--memory-check]
 
@@ -151,6 +151,8 @@ def main():
     ap.add_argument("--scenes", default="", help="comma list of config names (default: all in configs/)")
     ap.add_argument("--resolution", type=int, default=96)
     ap.add_argument("--pbl-spp", default="4", help="pbl's spp, or a comma list (a row for each)")
+    ap.add_argument("--pbl-seeds", default="1", help="pbl's seeds, a comma list: relMSE is their mean (its range "
+                    "in the last column), the time the first seed's")
     ap.add_argument("--volpath-spp", type=int, default=16)
     ap.add_argument("--ref-spp", type=int, default=2048)
     ap.add_argument("--ref-spp-for", default="", help="per-scene reference spp, e.g. wax_sphere=32768,wine_glass=16384 "
@@ -178,8 +180,13 @@ def main():
         scene = ROOT / "configs" / f"{name}.toml"
         ref, ref_noise = reference(scene, res, ref_spp.get(name, args.ref_spp), args.threads, args.cache)
         place = _run(PLACE, scene, args.threads, args.cache)
-        pbls = {spp: _run(RENDER, scene, tmp / f"{name}_pbl_{spp}.exr", "pbl", spp, 1, args.threads, res, args.cache)
-                for spp in pbl_spps}
+        seeds = [int(v) for v in args.pbl_seeds.split(",") if v]
+        pbls = {}
+        for spp in pbl_spps:
+            for seed in seeds:  # the first seed's render keeps the plain name (its layers make the medium's mask)
+                tag = f"{name}_pbl_{spp}" + ("" if seed == seeds[0] else f"_seed{seed}")
+                r = _run(RENDER, scene, tmp / f"{tag}.exr", "pbl", spp, seed, args.threads, res, args.cache)
+                pbls.setdefault(spp, r)
         vp = _run(RENDER, scene, tmp / f"{name}_vp.exr", "volpath", args.volpath_spp, 1, args.threads, res,
                   args.cache)
         vp_img = read_exr(tmp / f"{name}_vp.exr")[0].astype(np.float64)
@@ -200,9 +207,11 @@ def main():
         bound_ceiling = bool(e_vp_out <= 2.0 * noise_out)
         ceiling = e_vp_c / (noise_out if bound_ceiling else e_vp_out - noise_out)
         for spp, pbl in pbls.items():
-            pbl_img = read_exr(tmp / f"{name}_pbl_{spp}.exr")[0].astype(np.float64)
-            e_pbl = rel_mse(pbl_img, ref)
-            e_pbl_med = rel_mse_in(pbl_img, ref, mask)
+            imgs = [read_exr(tmp / (f"{name}_pbl_{spp}" + ("" if seed == seeds[0] else f"_seed{seed}") + ".exr"))[0]
+                    .astype(np.float64) for seed in seeds]
+            per_seed = [rel_mse(img, ref) for img in imgs]
+            e_pbl = float(np.mean(per_seed))
+            e_pbl_med = float(np.mean([rel_mse_in(img, ref, mask) for img in imgs]))
             bound = bool(e_pbl <= 2.0 * ref_noise)
             e_pbl_c = ref_noise if bound else e_pbl - ref_noise
             t_eq = vp["time_s"] * e_vp_c / e_pbl_c
@@ -221,7 +230,7 @@ def main():
                    "lower_bound": bound, "medium_pixels": int(mask.sum()), "pbl_rel_mse_medium": e_pbl_med,
                    "volpath_rel_mse_medium": e_vp_med, "volpath_rel_mse_outside_medium": e_vp_out,
                    "speed_up_ceiling": ceiling, "lower_bound_ceiling": bound_ceiling, "speed_up_medium": speed_med,
-                   "lower_bound_medium": bound_med}
+                   "lower_bound_medium": bound_med, "pbl_seeds": seeds, "pbl_rel_mse_per_seed": per_seed}
             rows.append(row)
             mark = ">=" if bound else ""
             t_eq_s, up_s = f"{mark}{t_eq:.2f}", f"{mark}{row['speed_up']:.2f}"
@@ -230,7 +239,8 @@ def main():
                   f"{vp['time_s']:>9.2f} {e_vp:>8.4f} {t_eq_s:>13} {up_s:>8} "
                   f"{ref_noise:>9.5f} {e_pbl_med:>9.4f} {e_vp_med:>9.4f} "
                   f"{('>=' if bound_med else '') + f'{speed_med:.2f}':>13} "
-                  f"{('>=' if bound_ceiling else '') + f'{ceiling:.2f}':>8}", flush=True)
+                  f"{('>=' if bound_ceiling else '') + f'{ceiling:.2f}':>8}"
+                  f"{f'  seeds {min(per_seed):.4f}-{max(per_seed):.4f}' if len(seeds) > 1 else ''}", flush=True)
     print("speed-up = volpath's time to pbl's error / (place-samples + pbl render); tables are built once per "
           "material and not counted; med.: relMSE over the pixels where pbl's volume layers are >= 5% of the pixel;\n"
           "speed-up med.: the same speed-up with both errors over those pixels only; ceiling: volpath's whole-image "
