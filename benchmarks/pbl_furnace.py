@@ -4,7 +4,7 @@
     .venv/bin/python benchmarks/pbl_furnace.py
 
 Prints the mean over the central pixels and each layer, for an index-matched boundary and for eta = 1.5, at mean
-free paths 0.5 and 2. The multiple term subtracts a mirror-image source at the boundary plane nearest each volume
+free paths 0.5 and 2 (--shape slab: a thick slab seen from above instead). The multiple term subtracts a mirror-image source at the boundary plane nearest each volume
 sample (the table's medium is infinite), and the bounced layer adds what a dielectric boundary reflects; both are
 approximations, and the numbers measure them. volpath passes it exactly (tests/render/test_volpath.py).
 """
@@ -33,6 +33,9 @@ def main():
                     "1: compare with --orders)")
     ap.add_argument("--orders", action="store_true", help="also volpath --orders 0, 1, 2, 3+ (256 spp), for the "
                     "layers surface, single, double, multiple (+ bounced)")
+    ap.add_argument("--shape", choices=("sphere", "slab"), default="sphere", help="sphere: radius 1, seen whole; "
+                    "slab: a box 1 thick and 4 wide (20 x 80 x 80 mean free paths at 0.05), seen from above at its "
+                    "centre (a half-space's boundary under a sky, and light from the far faces)")
     ap.add_argument("--pbl", default="{}", help='[render.pbl] settings as JSON, e.g. \'{"clamp": 0.005}\'')
     args = ap.parse_args()
     import json
@@ -42,16 +45,21 @@ def main():
         for mfp in (float(x) for x in args.mfp.split(",")):
             shape = {"type": "sphere", "radius": 1.0, "interface": "null" if eta == 1.0 else "dielectric",
                      "medium": {"albedo": args.albedo, "mean_free_path": mfp, "g": args.g}}
+            cam = camera((16, 16), position=(0, 0, 3.0), fov=30)
+            if args.shape == "slab":
+                shape = {**shape, "type": "box", "size": [4.0, 1.0, 4.0]}
+                del shape["radius"]
+                cam = camera((16, 16), position=(0.0, 3.0, 0.3), fov=8)
             if eta != 1.0:
                 shape["eta"] = eta
-            scene = {"camera": camera((16, 16), position=(0, 0, 3.0), fov=30), "render": {"spp": 8, "pbl": json.loads(args.pbl)},
+            scene = {"camera": cam, "render": {"spp": 8, "pbl": json.loads(args.pbl)},
                      "lights": [{"type": "environment", "radiance": 1.0}], "shapes": [shape]}
             p = write_scene(tmp, scene)
             render_scene(p, tmp / "o.exr", RenderOptions(method="pbl", cache_dir=tmp, quiet=True))
             layers, img = read_layers(tmp / "o.exr"), read_exr(tmp / "o.exr")[0]
             c = slice(5, 11)
             parts = ", ".join(f"{k} {float(v[c, c].mean()):.3f}" for k, v in layers.items())
-            print(f"eta {eta} mean free path {mfp} g {args.g} albedo {args.albedo}: centre {img[c, c].mean():.3f} ({parts})")
+            print(f"{args.shape} eta {eta} mean free path {mfp} g {args.g} albedo {args.albedo}: centre {img[c, c].mean():.3f} ({parts})")
             if args.orders:
                 from conftest import build, volpath
 

@@ -16,7 +16,7 @@ from pbvol_cli.pipeline.cache import key_of, load_npz, save_npz_atomic
 # 2: indirect diffuse light at the surface samples; 3: boundary planes; 4: glass walls reflect; 5-7: roulette on
 # weak reflections, planes beyond the boundary; 8: a light is not its own shadow blocker; 9: light guided by
 # reflections inside transparent layers
-FORMAT_VERSION = 9
+FORMAT_VERSION = 10
 
 
 @dataclass

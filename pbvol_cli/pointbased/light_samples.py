@@ -27,6 +27,9 @@ from pbvol_cli.pointbased.surface_samples import poisson_disk
 from pbvol_cli.render.intersect import closest_surface_hits, visible
 
 
+PLANE_COLS = 8  # v_plane's columns: the entry plane's n (3) and q, the exit plane's n (3) and q
+
+
 @dataclass
 class LightSamples:
     s_pos: np.ndarray  # (n, 3) surface samples on outer layers
@@ -41,7 +44,8 @@ class LightSamples:
     v_area: np.ndarray  # (m,) beam cross-section
     v_medium: np.ndarray  # (m,) medium ids
     v_ends: np.ndarray  # (m,) 1: the segment starts on the boundary, 2: it ends there (both: 3)
-    v_plane: np.ndarray  # (m, 4) nearest boundary tangent plane (n, q): n . x = q, n pointing from the segment
+    v_plane: np.ndarray  # (m, 8) the boundary's tangent planes where the segment's beam enters and leaves,
+    #                      (n, q) each: n . x = q on it, n pointing from the segment to it
 
     FIELDS = ("s_pos", "s_nrm", "s_surface", "s_area", "s_irradiance", "v_start", "v_dir", "v_len", "v_power",
               "v_area", "v_medium", "v_ends", "v_plane")
@@ -55,7 +59,7 @@ class LightSamples:
         n, m = len(ls.s_pos), len(ls.v_start)
         shapes_ok = (ls.s_nrm.shape == (n, 3) and ls.s_irradiance.shape == (n, 3) and ls.v_dir.shape == (m, 3)
                      and ls.v_power.shape == (m, 3) and len(ls.v_len) == m and len(ls.v_area) == m
-                     and len(ls.v_ends) == m and ls.v_plane.shape == (m, 4))
+                     and len(ls.v_ends) == m and ls.v_plane.shape == (m, PLANE_COLS))
         if not shapes_ok or not all(np.all(np.isfinite(getattr(ls, k))) for k in ("v_start", "v_power", "v_len")):
             raise ValueError("inconsistent light samples")
         return ls
@@ -207,8 +211,8 @@ def _segments(media, surfaces, pos, d, power, medium, area, t, surf, ng, ns, eps
               o_start, o_dir, o_len, o_power, o_area, o_medium, o_ends, o_plane, alive):
     """Cut each beam's path to the boundary into nseg volume samples (equal fractions of 1 - exp(-sigma t) in the
     most penetrating channel), then reflect it internally (Fresnel F; below p_min by roulette) or end it. o_ends marks the segments that
-    start (1) or end (2) on the boundary; o_plane is the nearer of the boundary's tangent planes where the beam
-    starts (normal bn) and ends, as (n, q) with n . x = q on it and n pointing from the segment to it."""
+    start (1) or end (2) on the boundary; o_plane holds the boundary's tangent planes where the beam starts
+    (normal bn) and ends, as (n, q) each with n . x = q on it and n pointing from the segment to it."""
     for k in prange(pos.shape[0]):
         base = k * nseg
         m = medium[k]
@@ -237,20 +241,18 @@ def _segments(media, surfaces, pos, d, power, medium, area, t, surf, ng, ns, eps
             o_area[i] = area[k]
             o_medium[i] = m
             o_ends[i] = (1 if q == 0 else 0) | (2 if q == nseg - 1 else 0)
-            # nearest of the two tangent planes, from the segment's centre
-            tc = 0.5 * (t0 + t1)
+            # both tangent planes (each source point takes the nearer: estimators._source); outward normals
             cs = d[k, 0] * bn[k, 0] + d[k, 1] * bn[k, 1] + d[k, 2] * bn[k, 2]
             ce = d[k, 0] * ng[k, 0] + d[k, 1] * ng[k, 1] + d[k, 2] * ng[k, 2]
-            hs, he = tc * abs(cs) + eps, (tex - tc) * abs(ce)  # (the start lies eps inside the boundary)
-            if hs <= he:  # the start plane lies behind: normal -d-ward
-                sg = -1.0 if cs > 0.0 else 1.0
-                nx, ny, nz, h = sg * bn[k, 0], sg * bn[k, 1], sg * bn[k, 2], hs
-            else:
-                sg = 1.0 if ce > 0.0 else -1.0
-                nx, ny, nz, h = sg * ng[k, 0], sg * ng[k, 1], sg * ng[k, 2], he
-            cx, cy, cz = pos[k, 0] + tc * d[k, 0], pos[k, 1] + tc * d[k, 1], pos[k, 2] + tc * d[k, 2]
-            o_plane[i, 0], o_plane[i, 1], o_plane[i, 2] = nx, ny, nz
-            o_plane[i, 3] = nx * cx + ny * cy + nz * cz + h
+            sg = -1.0 if cs > 0.0 else 1.0
+            se = 1.0 if ce > 0.0 else -1.0
+            for c in range(3):
+                o_plane[i, c] = sg * bn[k, c]
+                o_plane[i, 4 + c] = se * ng[k, c]
+            # the start lies eps inside the boundary
+            o_plane[i, 3] = o_plane[i, 0] * pos[k, 0] + o_plane[i, 1] * pos[k, 1] + o_plane[i, 2] * pos[k, 2] + eps
+            o_plane[i, 7] = (o_plane[i, 4] * (pos[k, 0] + tex * d[k, 0]) + o_plane[i, 5] * (pos[k, 1] + tex * d[k, 1])
+                             + o_plane[i, 6] * (pos[k, 2] + tex * d[k, 2]))
             t0 = t1
         # internal reflection at the exit
         s = surf[k]
@@ -347,7 +349,7 @@ def beam_segments(caster, bs: BuiltScene, bpos, bdir, bpow, bmed, barea, bnrm, s
         t, s, ng, ns = closest_surface_hits(caster, bs, bpos[act], bdir[act])
         m = len(act) * segments
         o = (np.zeros((m, 3)), np.zeros((m, 3)), np.zeros(m), np.zeros((m, 3)), np.zeros(m), np.zeros(m, np.int64),
-             np.zeros(m, np.int64), np.zeros((m, 4)))
+             np.zeros(m, np.int64), np.zeros((m, PLANE_COLS)))
         p_, d_, w_, n_, a_ = bpos[act], bdir[act], bpow[act], bnrm[act], alive[act].copy()
         R2 = layer_reflectance(caster, bs, p_, d_, t, s, ng, ns)
         _segments(bs.media, bs.surfaces, p_, d_, w_, bmed[act], barea[act], t, s, ng, ns, bs.eps, segments,
@@ -358,7 +360,7 @@ def beam_segments(caster, bs: BuiltScene, bpos, bdir, bpow, bmed, barea, bnrm, s
             out[key].append(arr[valid])
         if advance is not None:
             advance()
-    empty = {"start": (0, 3), "dir": (0, 3), "power": (0, 3), "plane": (0, 4)}
+    empty = {"start": (0, 3), "dir": (0, 3), "power": (0, 3), "plane": (0, PLANE_COLS)}
     cat = {k: (np.concatenate(v) if v else np.zeros(empty.get(k, 0))) for k, v in out.items()}
     cat["medium"] = cat["medium"].astype(np.int64)
     cat["ends"] = cat["ends"].astype(np.int64)

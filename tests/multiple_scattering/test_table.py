@@ -8,7 +8,7 @@ import pytest
 from pbvol_cli.multiple_scattering import lobes
 from pbvol_cli.multiple_scattering.layout import Layout
 from pbvol_cli.multiple_scattering.simulate import simulate
-from pbvol_cli.multiple_scattering.table import TableSettings, build_table, grid_lookup, scaled_lookup
+from pbvol_cli.multiple_scattering.table import TableSettings, build_table, domain_taper, grid_lookup, scaled_lookup
 
 HG, ISO = 1, 0
 SMALL = Layout(extent=10.0, n_rho=16, n_z=32, n_theta=9, n_phi=9, kill_radius=20.0)
@@ -125,8 +125,26 @@ def test_lookup_is_exact_at_cell_and_direction_centres(small_table):
             shape = max(0.0, float(lobes.sh_at(table.order, np.array([tc[a]]), np.array([pc[b]]))[0] @ table.coef[slot]))
         else:
             shape = lobes.dequantise_all(table.qlobe[slot:slot + 1], table.qmax[slot:slot + 1])[0, a * lay.n_phi + b]
-        assert got == pytest.approx(float(table.intensity[i, j]) * shape, rel=1e-9, abs=1e-300)
+        # the cells' value times the table's window (1 within TAPER_START of the extent)
+        window = domain_taper(lay.extent, rho_c[i], z_c[j])
+        assert got == pytest.approx(float(table.intensity[i, j]) * shape * window, rel=1e-9, abs=1e-300)
     assert table.lookup(10.5, 0.0, 1.0, 0.0) == 0.0  # outside the extent
+
+
+def test_the_window_depends_on_the_distance_alone_and_is_continuous():
+    """domain_taper: 1 within TAPER_START R, 0 from R on, smooth between, and the same for every (rho, z) at one
+    distance (a source and its mirror image, whose frames differ, are cut off alike; the stored cylinder's corners
+    rho, |z| < R beyond the sphere of radius R are not used)."""
+    R = 10.0
+    assert domain_taper(R, 0.0, 0.0) == 1.0 and domain_taper(R, 4.0, 5.0) == 1.0  # 6.4 < 7
+    assert domain_taper(R, 8.0, 8.0) == 0.0 and domain_taper(R, 0.0, 10.0) == 0.0
+    for r in (7.5, 8.5, 9.5):
+        vals = [domain_taper(R, r * math.sin(a), r * math.cos(a)) for a in np.linspace(0, math.pi, 7)]
+        assert 0.0 < vals[0] < 1.0 and np.allclose(vals, vals[0], rtol=1e-12)
+    r = np.linspace(0.0, R, 2001)
+    w = np.array([domain_taper(R, x, 0.0) for x in r])
+    # monotone, and no step larger than smoothstep's steepest slope, 1.5 / (R - TAPER_START R), allows
+    assert np.all(np.diff(w) <= 1e-15) and np.max(np.abs(np.diff(w))) <= 1.5 / (0.3 * R) * (r[1] - r[0]) * 1.001
 
 
 def test_render_form_equals_the_compact_form_at_centres(small_table):

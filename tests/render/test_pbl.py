@@ -373,7 +373,8 @@ def test_multiple_term_of_a_source_with_its_image_is_never_negative():
         out_d, out_m = np.zeros(3), np.zeros(3)
         # the plane n . y = q, n = +z (outward, from the source to the plane), q = 0: the image is at x + 2 (q - n.x) n
         _source(x[0], x[1], x[2], d[0], d[1], d[2], 1.0, 1.0, 1.0, p[0], p[1], p[2], w[0], w[1], w[2], sig_a, sig_s,
-                1, 0.7, 0.02, 0.05, False, True, tabs, out_d, out_m, 0.0, 0.0, 1.0, 0.0, 0.0)
+                1, 0.7, 0.02, 0.05, False, True, tabs, out_d, out_m, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0,
+                0.0, 0.0)
         r = p - x
         h = 2.0 * (0.0 - x[2])
         e = np.array([d[0], d[1], -d[2]])
@@ -387,6 +388,37 @@ def test_multiple_term_of_a_source_with_its_image_is_never_negative():
             n_neg += 1
             assert out_m[0] == 0.0
     assert n_neg > 10 and n_pos > 10  # both cases met
+
+
+def test_each_source_point_takes_the_nearer_of_its_beams_two_boundary_planes():
+    """A segment stores the tangent planes where its beam entered and left; each of its source points is mirrored
+    in the nearer one (the segment's centre decided before: a long last segment's points near the entry were
+    mirrored in the far exit plane and kept nearly all of the table's light). Here the planes z = 0 (normal +z)
+    and z = -10 (normal -z): a source 0.3 below the first is mirrored in it, whichever order the two come in."""
+    from pbvol_cli.multiple_scattering.layout import Layout
+    from pbvol_cli.multiple_scattering.table import TableSettings, build_table
+    from pbvol_cli.pointbased.estimators import _source
+
+    lay = Layout(extent=10.0, n_rho=16, n_z=32, n_theta=9, n_phi=9, kill_radius=20.0)
+    table, _ = build_table(0.95, 0.0, 1, TableSettings(particles=20000, layout=lay, sh_order=8))
+    tabs = (table.render_args(),) * 3
+    sig_a, sig_s = np.full(3, 0.05), np.full(3, 0.95)
+    top, bottom = (0.0, 0.0, 1.0, 0.0), (0.0, 0.0, -1.0, 10.0)
+
+    def multiple(x, p, first, second):
+        out_d, out_m = np.zeros(3), np.zeros(3)
+        _source(*x, 0.0, 0.6, -0.8, 1.0, 1.0, 1.0, *p, 0.0, 0.0, 1.0, sig_a, sig_s, 1, 0.0, 0.02, 0.05, False,
+                True, tabs, out_d, out_m, *first, *second, 0.0)
+        return out_m[0]
+
+    x, p = (0.0, 0.0, -0.3), (0.4, 0.2, -0.5)
+    near = multiple(x, p, top, top)
+    far = multiple(x, p, bottom, bottom)
+    assert near > 0 and far > 1.05 * near  # the far plane's image takes less away
+    assert multiple(x, p, top, bottom) == near and multiple(x, p, bottom, top) == near
+    x2, p2 = (0.0, 0.0, -9.6), (0.4, 0.2, -9.3)  # now nearer the bottom
+    assert multiple(x2, p2, top, bottom) == multiple(x2, p2, bottom, bottom) > 0
+    assert multiple(x2, p2, top, top) > 1.05 * multiple(x2, p2, bottom, bottom)
 
 
 @pytest.mark.xfail(strict=True, reason="known: the thick isotropic furnace behind eta 1.44 renders ~4 (README, "
