@@ -36,6 +36,7 @@ def main():
     ap.add_argument("--scenes", default="bumpy_sphere,oil_glass,wax_sphere,wax_sphere_soft,milk_glass,wine_glass,wine_glass_soft")
     ap.add_argument("--resolution", type=int, default=48)
     ap.add_argument("--pbl-spp", type=int, default=8)
+    ap.add_argument("--pbl-seed", type=int, default=1, help="pbl's seed (the references' are fixed)")
     ap.add_argument("--ref-spp", type=int, default=1024)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
@@ -49,7 +50,7 @@ def main():
     for name in [s for s in args.scenes.split(",") if s]:
         scene = ROOT / "configs" / f"{name}.toml"
         pbl_out = out / f"{name}_pbl.exr"
-        _run(RENDER, scene, pbl_out, "pbl", args.pbl_spp, 1, args.threads, res, args.cache)
+        _run(RENDER, scene, pbl_out, "pbl", args.pbl_spp, args.pbl_seed, args.threads, res, args.cache)
         layers = {k: v.astype(np.float64) for k, v in read_layers(pbl_out).items()}
         refs = {}
         for orders in ("1", "2", "3+"):
