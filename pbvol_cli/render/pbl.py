@@ -70,7 +70,8 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse):
             o[:] = 0.0
             o3[:] = 0.0
             if comp == 0:
-                single_scattering(tree, v_start, v_dir, v_len, v_power, v_area, v_ends, sig_a, sig_s, kind, g, px,
+                single_scattering(tree, v_start, v_dir, v_len, v_power, v_area, v_ends, v_plane, sig_a, sig_s, kind,
+                                  g, px,
                                   py, pz, wx, wy, wz, o)
             else:
                 double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a, sig_s,

@@ -77,13 +77,17 @@ def test_refracting_sphere_beams_stay_inside_through_internal_reflections(tmp_pa
 
 
 def _check_planes(ls, depth):
-    """Each sample's boundary plane (n . x = q) is a unit-normal tangent plane of the (convex) boundary, on the far
-    side of the segment's centre: no nearer than the boundary itself (depth(c): distance to it)."""
-    c = ls.v_start + 0.5 * ls.v_len[:, None] * ls.v_dir
-    n, q = ls.v_plane[:, :3], ls.v_plane[:, 3]
-    assert np.allclose(np.linalg.norm(n, axis=1), 1.0)
-    h = q - np.einsum("ij,ij->i", n, c)
-    assert np.all(h >= depth(c) - 1e-6)
+    """Each sample's two boundary planes (n . x = q: where its beam entered and where it leaves) are unit-normal
+    tangent planes of the (convex) boundary, on the far side of the segment's points: no nearer than the boundary
+    itself (depth(c): distance to it); the entry plane's normal faces against the beam, the exit plane's with it."""
+    for x in (ls.v_start, ls.v_start + 0.5 * ls.v_len[:, None] * ls.v_dir, ls.v_start + ls.v_len[:, None] * ls.v_dir):
+        for k in (0, 4):
+            n, q = ls.v_plane[:, k:k + 3], ls.v_plane[:, k + 3]
+            assert np.allclose(np.linalg.norm(n, axis=1), 1.0)
+            h = q - np.einsum("ij,ij->i", n, x)
+            assert np.all(h >= depth(x) - 1e-6)
+    assert np.all(np.einsum("ij,ij->i", ls.v_plane[:, 0:3], ls.v_dir) <= 1e-9)
+    assert np.all(np.einsum("ij,ij->i", ls.v_plane[:, 4:7], ls.v_dir) >= -1e-9)
 
 
 def test_beams_reach_a_liquid_through_the_glass(tmp_path):
