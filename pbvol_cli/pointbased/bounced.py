@@ -143,7 +143,7 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
     source: the medium's MediumData (the lights' volume samples); make_data(samples) builds one from a namespace
     of v_* arrays; settings: the camera kernel's settings array (all components on). Returns the union of the
     generations as such a namespace, or None when the boundary reflects nothing."""
-    from pbvol_cli.render.pbl import bounced_share, eval_segments
+    from pbvol_cli.render.pbl import bounced_share, eval_segments, segment_planes
 
     pos, nin, sid, area, spacing = boundary_points(bs, medium, count, seed)
     n = len(pos)
@@ -154,11 +154,12 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
     for g in range(generations):
         w, rng = np.zeros((n, 3)), np.zeros(n, np.uint64)
         _cosine_directions(nin, seed, 0xB0 + 4 * g, w, rng)
-        t, _, _, _ = closest_surface_hits(caster, bs, pos + bs.eps * nin, w)
+        t, _, ng, _ = closest_surface_hits(caster, bs, pos + bs.eps * nin, w)
         ok = np.flatnonzero(np.isfinite(t))
         out = np.zeros((n, 3, 3))
         eval_segments(pool, threads, ok, pos + bs.eps * nin, w, np.ones((n, 3)), np.where(np.isfinite(t), t, 0.0),
-                      rng, bs.media[medium], data.kernel_tuple(), settings, out, np.zeros(n, np.int64))
+                      rng, bs.media[medium], data.kernel_tuple(), settings, out, np.zeros(n, np.int64),
+                      segment_planes(pos + bs.eps * nin, w, t, nin, ng))
         L = out.sum(axis=1)
         bpos, bdir, bpow = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
         # the glass wall behind the boundary, seen by the light leaving along -w from just inside x_j

@@ -36,9 +36,11 @@ COMPONENTS = ("single", "double", "multiple", "bounced")
 
 
 @njit(cache=True)
-def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse):
+def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse, planes):
     """Medium contribution of ray i over [0, tseg[i]] into out[i, component, channel]. A ray after a diffuse bounce
-    (diffuse[i] > 0) takes settings[7] random points for every component (sec. 3.6: averaged over the bounces)."""
+    (diffuse[i] > 0) takes settings[7] random points for every component (sec. 3.6: averaged over the bounces).
+    planes[i]: the boundary's tangent planes where the segment starts and ends (segment_planes), the nearer of
+    which is each point's for the multiple term's image."""
     tree, v_start, v_dir, v_len, v_power, v_area, v_centre, v_scat, v_rb, tabs, v_ends, v_plane, r_near = md
     sig_a, sig_s = med[0:3], med[3:6]
     kind, g = int(med[6]), med[7]
@@ -51,6 +53,7 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse):
     o3 = np.zeros(3)
     wx, wy, wz = -dirs[i, 0], -dirs[i, 1], -dirs[i, 2]
     xi = rand(rng, i)
+    pplane = np.empty(4)
     # single scattering at kmax points; double and multiple (smooth along the ray) at their own k2 points
     for comp in range(2):
         n = kmax if comp == 0 else k2
@@ -74,9 +77,15 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse):
                                   g, px,
                                   py, pz, wx, wy, wz, o)
             else:
+                # the start plane's depth is d cos, the end plane's (d_max - d) cos'
+                e = 4 if (planes[i, 7] - (planes[i, 4] * px + planes[i, 5] * py + planes[i, 6] * pz)
+                          < planes[i, 3] - (planes[i, 0] * px + planes[i, 1] * py + planes[i, 2] * pz)) else 0
+                for c in range(4):
+                    pplane[c] = planes[i, e + c]
                 double_multiple(tree, v_start, v_dir, v_len, v_power, v_centre, v_scat, v_rb, v_plane, sig_a, sig_s,
                                 kind, g,
-                                px, py, pz, wx, wy, wz, cut_size, rclamp, r_near, do_d, do_m, tabs, o, o3, rng, i)
+                                px, py, pz, wx, wy, wz, cut_size, rclamp, r_near, do_d, do_m, tabs, o, o3, rng, i,
+                                pplane)
             for c in range(3):
                 w = beta[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * d) / (pdf * n)
                 if comp == 0:
@@ -87,20 +96,40 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse):
 
 
 @njit(nogil=True, cache=True)
-def _eval_segments(idx, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse):
+def _eval_segments(idx, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse, planes):
     for k in range(idx.shape[0]):
-        _segment(idx[k], pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse)
+        _segment(idx[k], pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse, planes)
 
 
-def eval_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse):
+def segment_planes(pos, dirs, t, n_start, n_end):
+    """(n, 8): the tangent planes n . x = q where each segment (from pos along dirs for t) starts and ends, normals
+    oriented out of the segment's side (n_start . d < 0, n_end . d > 0), from the surfaces' normals there (NaN or
+    an infinite t: no plane, q = inf). The multiple term mirrors its sources in the nearer one of each point."""
+    out = np.zeros((len(pos), 8))
+    out[:, 2] = out[:, 6] = 1.0
+    out[:, 3] = out[:, 7] = np.inf
+    for col, nrm, x, sgn in ((0, n_start, pos, -1.0), (4, n_end, pos + np.where(np.isfinite(t), t, 0.0)[:, None]
+                                                        * dirs, 1.0)):
+        if nrm is None:
+            continue
+        cos = np.einsum("ij,ij->i", nrm, dirs)
+        ok = np.isfinite(cos) & (cos != 0.0) & (np.isfinite(t) if col == 4 else True)
+        n = nrm[ok] * (sgn * np.sign(cos[ok]))[:, None]
+        out[ok, col:col + 3] = n
+        out[ok, col + 3] = np.einsum("ij,ij->i", n, x[ok])
+    return out
+
+
+def eval_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse, planes):
     """Numba's parallel loops reject nested tuples (the octree, the tables): threads over slices instead, the
-    kernel releasing the GIL. Rays are independent, so the result does not depend on the split."""
+    kernel releasing the GIL. Rays are independent, so the result does not depend on the split. planes: the
+    segments' end planes (segment_planes)."""
     if threads <= 1 or len(idx) < 64:
-        _eval_segments(idx, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse)
+        _eval_segments(idx, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse, planes)
         return
     # interleaved slices balance rays of different cost
     list(pool.map(lambda j: _eval_segments(idx[j::threads], pos, dirs, beta, tseg, rng, med, md, settings, out,
-                                           diffuse), range(threads)))
+                                           diffuse, planes), range(threads)))
 
 
 @njit(cache=True)
@@ -360,6 +389,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
     medium = np.full(n, -1, np.int64)
     depth = np.zeros(n, np.int64)
     state = np.zeros(n, np.int64)  # see _interact
+    n_start = np.full((n, 3), np.nan)  # the normal of the surface each ray leaves (NaN: the camera)
     while len(pos):
         t, surf, ng, ns = closest_surface_hits(caster, bs, pos, dirs)
         tl, li = np.empty(len(pos)), np.empty(len(pos), np.int64)
@@ -367,6 +397,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
         tev = np.minimum(t, tl)
         inside = np.flatnonzero((medium >= 0) & np.isfinite(tev))
         contrib = np.zeros((len(pos), 4, 3))
+        planes = segment_planes(pos, dirs, t, n_start, ng) if len(inside) else None
         for m in np.unique(medium[inside]):
             sub = inside[medium[inside] == m]
             md, mdb = media_data.get(int(m), (None, None))
@@ -380,7 +411,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
                 beta_ev = beta.copy()
                 beta_ev[ev] /= (q[keep] / kpaths)[:, None]
                 eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, bs.media[m], md.kernel_tuple(),
-                              sett, contrib, state >> 2)
+                              sett, contrib, state >> 2, planes)
                 if mdb is not None and mdb.count:
                     # where the bounced light is a small share of the scattered power, it is evaluated on a
                     # matching fraction of the segments (weight 1 / fraction: unbiased, its noise stays small)
@@ -389,7 +420,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
                     beta_b = beta_ev / qb
                     cb3 = np.zeros((len(pos), 3, 3))
                     eval_segments(pool, threads, evb, pos, dirs, beta_b, tev, rng, bs.media[m], mdb.kernel_tuple(),
-                                  sett_b, cb3, state >> 2)
+                                  sett_b, cb3, state >> 2, planes)
                     contrib[:, 3] += cb3.sum(axis=1)
             st = bs.media[m, 0:3] + bs.media[m, 3:6]
             beta[sub] *= np.exp(-st[None, :] * tev[sub, None])
@@ -419,4 +450,5 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
         parent = np.repeat(np.arange(k), 2)[keep]
         pos, dirs, beta, medium, state = cp[keep], cd[keep], cb[keep], cm[keep], cstate[keep]
         depth, pixel, evm = depth[parent] + 1, pixel[parent], evm[parent]
+        n_start = ng[parent]  # a child leaves the surface its parent met
         rng = rng[parent] ^ (np.uint64(0x9E37) * (keep.nonzero()[0] % 2 + 1).astype(np.uint64))
