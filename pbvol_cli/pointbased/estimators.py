@@ -250,16 +250,16 @@ def _source(x, y, z, dx, dy, dz, Pr, Pg, Pb, px, py, pz, wx, wy, wz, sig_a, sig_
         for c in range(3):
             Pc = Pr if c == 0 else (Pg if c == 1 else Pb)
             st = sig_a[c] + sig_s[c]
-            v = scaled_lookup(tabs[c], Pc, st, rx, ry, rz, dx, dy, dz, wx, wy, wz)
-            if v <= 0.0:
+            v0 = scaled_lookup(tabs[c], Pc, st, rx, ry, rz, dx, dy, dz, wx, wy, wz)
+            if v0 <= 0.0:
                 continue
+            v = v0
             zb = IMAGE_EXTRAPOLATION / max(sig_a[c] + transport_share(kind, g) * sig_s[c], 1e-30)
             if image:
                 h = 2.0 * (max(q - (nx * x + ny * y + nz * z), 0.0) + zb)
                 vi = scaled_lookup(tabs[c], Pc, st, rx - h * nx, ry - h * ny, rz - h * nz, ex, ey, ez, wx, wy, wz)
-                v *= min(max(1.0 - vi / v, 0.0), 1.0)
+                v *= min(max(1.0 - vi / v0, 0.0), 1.0)
             if image_p and wp > 0.0 and v > 0.0:
-                v0 = scaled_lookup(tabs[c], Pc, st, rx, ry, rz, dx, dy, dz, wx, wy, wz)
                 h = 2.0 * (max(pplane[3] - (ax * x + ay * y + az * z), 0.0) + zb)
                 vi = scaled_lookup(tabs[c], Pc, st, rx - h * ax, ry - h * ay, rz - h * az, fx, fy, fz, wx, wy, wz)
                 v *= min(max(1.0 - vi / v0, 0.0), 1.0) ** wp
