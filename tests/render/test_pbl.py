@@ -546,6 +546,26 @@ def test_multiple_term_mirrors_the_source_in_the_camera_points_plane_too():
     assert multiple(x, p_far, NO_PLANE) == pytest.approx(v - v_top, rel=1e-9)
 
 
+def test_segment_planes_face_out_of_the_segment_on_either_side():
+    """A camera segment's end planes, from the surfaces' normals whichever way they point: the start plane's
+    normal faces back along the ray and the end plane's forward, both through the segment's end points; a ray
+    from the camera (NaN normal) or one that leaves the scene (t = inf) has no plane there (q = inf)."""
+    from pbvol_cli.render.pbl import segment_planes
+
+    pos = np.array([[0.0, 0.0, 0.0], [1.0, 2.0, 0.5], [0.0, 0.0, 0.0]])
+    d = np.array([[0.0, 0.0, -1.0], [0.6, 0.0, 0.8], [1.0, 0.0, 0.0]])
+    t = np.array([2.0, 1.0, np.inf])
+    n_start = np.array([[0.0, 0.0, 1.0], [-0.6, 0.0, -0.8], [np.nan, np.nan, np.nan]])
+    n_end = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]])
+    pl = segment_planes(pos, d, t, n_start, n_end)
+    assert pl[0].tolist() == [0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -1.0, 2.0]  # out of the slab -2 < z < 0 both ways
+    assert pl[1, :3].tolist() == [-0.6, 0.0, -0.8] and pl[1, 3] == pytest.approx(-0.6 - 0.4)
+    assert pl[1, 4:7].tolist() == [0.0, 0.0, 1.0] and pl[1, 7] == pytest.approx(0.5 + 0.8)
+    for row, p0, p1 in ((0, pos[0], pos[0] + 2 * d[0]), (1, pos[1], pos[1] + d[1])):  # inside: n . x <= q
+        assert pl[row, :3] @ (p0 + 0.5 * (p1 - p0)) < pl[row, 3] and pl[row, 4:7] @ (p0 + 0.5 * (p1 - p0)) < pl[row, 7]
+    assert pl[2, 3] == np.inf and pl[2, 7] == np.inf
+
+
 @pytest.mark.xfail(strict=True, reason="known: the thick isotropic furnace behind eta 1.44 renders ~1.18 (README, "
                    "Furnace): the multiple term is a few % high in a thick body (1.03 index-matched) and the "
                    "bounced generations compound it")
