@@ -22,6 +22,12 @@ from pbvol_cli.imageio import read_exr, read_layers  # noqa: E402
 from pbvol_cli.pipeline.render import RenderOptions, render_scene  # noqa: E402
 
 
+LIGHTS = {"sky": {"type": "environment", "radiance": 1.0},
+          "front": {"type": "directional", "direction": [0.0, 0.0, -1.0], "irradiance": 1.0},
+          "back": {"type": "directional", "direction": [0.0, 0.0, 1.0], "irradiance": 1.0},
+          "side": {"type": "directional", "direction": [1.0, 0.0, 0.0], "irradiance": 1.0}}
+
+
 def main():
     import argparse
 
@@ -36,6 +42,10 @@ def main():
     ap.add_argument("--shape", choices=("sphere", "slab"), default="sphere", help="sphere: radius 1, seen whole; "
                     "slab: a box 1 thick and 4 wide (20 x 80 x 80 mean free paths at 0.05), seen from above at its "
                     "centre (a half-space's boundary under a sky, and light from the far faces)")
+    ap.add_argument("--light", choices=("sky", "front", "back", "side"), default="sky", help="sky: the white "
+                    "environment (the furnace); front, back, side: a directional light of irradiance 1 from the "
+                    "camera's side, from behind the body or from the side (compare with --orders: light diffusing "
+                    "under the near boundary, through the body from its far side, around it)")
     ap.add_argument("--pbl", default="{}", help='[render.pbl] settings as JSON, e.g. \'{"clamp": 0.005}\'')
     args = ap.parse_args()
     import json
@@ -53,13 +63,13 @@ def main():
             if eta != 1.0:
                 shape["eta"] = eta
             scene = {"camera": cam, "render": {"spp": 8, "pbl": json.loads(args.pbl)},
-                     "lights": [{"type": "environment", "radiance": 1.0}], "shapes": [shape]}
+                     "lights": [LIGHTS[args.light]], "shapes": [shape]}
             p = write_scene(tmp, scene)
             render_scene(p, tmp / "o.exr", RenderOptions(method="pbl", cache_dir=tmp, quiet=True))
             layers, img = read_layers(tmp / "o.exr"), read_exr(tmp / "o.exr")[0]
             c = slice(5, 11)
             parts = ", ".join(f"{k} {float(v[c, c].mean()):.3f}" for k, v in layers.items())
-            print(f"{args.shape} eta {eta} mean free path {mfp} g {args.g} albedo {args.albedo}: centre {img[c, c].mean():.3f} ({parts})")
+            print(f"{args.shape} ({args.light}) eta {eta} mean free path {mfp} g {args.g} albedo {args.albedo}: centre {img[c, c].mean():.3f} ({parts})")
             if args.orders:
                 from conftest import build, volpath
 
