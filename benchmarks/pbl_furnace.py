@@ -42,14 +42,23 @@ def main():
     ap.add_argument("--shape", choices=("sphere", "slab"), default="sphere", help="sphere: radius 1, seen whole; "
                     "slab: a box 1 thick and 4 wide (20 x 80 x 80 mean free paths at 0.05), seen from above at its "
                     "centre (a half-space's boundary under a sky, and light from the far faces)")
-    ap.add_argument("--light", choices=("sky", "front", "back", "side"), default="sky", help="sky: the white "
+    ap.add_argument("--light", default="sky", help="sky: the white "
                     "environment (the furnace); front, back, side: a directional light of irradiance 1 from the "
                     "camera's side, from behind the body or from the side (compare with --orders: light diffusing "
-                    "under the near boundary, through the body from its far side, around it)")
+                    "under the near boundary, through the body from its far side, around it); or the direction "
+                    "the light travels as x,y,z (e.g. 0,-1,0: onto the slab from above)")
     ap.add_argument("--pbl", default="{}", help='[render.pbl] settings as JSON, e.g. \'{"clamp": 0.005}\'')
     args = ap.parse_args()
     import json
 
+    if args.light in LIGHTS:
+        light = LIGHTS[args.light]
+    else:
+        try:
+            light = {"type": "directional", "direction": [float(x) for x in args.light.split(",")], "irradiance": 1.0}
+            assert len(light["direction"]) == 3
+        except (ValueError, AssertionError):
+            ap.error(f"--light: expected one of {', '.join(LIGHTS)} or x,y,z, got {args.light!r}")
     tmp = Path(tempfile.mkdtemp(prefix="pbvol-furnace-"))
     for eta in (float(x) for x in args.eta.split(",")):
         for mfp in (float(x) for x in args.mfp.split(",")):
@@ -63,7 +72,7 @@ def main():
             if eta != 1.0:
                 shape["eta"] = eta
             scene = {"camera": cam, "render": {"spp": 8, "pbl": json.loads(args.pbl)},
-                     "lights": [LIGHTS[args.light]], "shapes": [shape]}
+                     "lights": [light], "shapes": [shape]}
             p = write_scene(tmp, scene)
             render_scene(p, tmp / "o.exr", RenderOptions(method="pbl", cache_dir=tmp, quiet=True))
             layers, img = read_layers(tmp / "o.exr"), read_exr(tmp / "o.exr")[0]
