@@ -11,6 +11,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -157,7 +158,7 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
     from pbvol_cli.pipeline.lut import get_table
     from pbvol_cli.pipeline.samples import get_light_samples
     from pbvol_cli.physics.phase import KINDS
-    from pbvol_cli.render.pbl import COMPONENTS, MediumData, render_pbl
+    from pbvol_cli.render.pbl import COMPONENTS, SAMPLE_KEYS, MediumData, render_pbl, returned_samples
 
     pbl = scene.render.pbl
     comps = pbl.components
@@ -218,32 +219,45 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
             return media_for_pass(p % pbl.light_sets)
         data = {m: MediumData(samples, m, built.media[m], media_tables[m], pbl.beam_width) for m in media_tables}
         t = time.perf_counter()
-        bounced = {m: _bounced(m, data[m], seed + p) for m in data}
+        bounced = {m: _bounced(m, data[m], seed + p, samples) for m in data}
         passes_samples_s[1] += time.perf_counter() - t
         return {m: (data[m], bounced[m]) for m in data}
 
-    def _bounced(m, md, s):
-        """The bounced samples of medium m (pointbased/bounced.py), or None."""
-        if "bounced" not in comps or pbl.bounce_generations == 0 or md.count == 0:
+    def _bounced(m, md, s, samples):
+        """The bounced samples of medium m, or None: scattered light that its boundary reflects back
+        (pointbased/bounced.py) and scattered light that left it and the scene sends back in (the light samples'
+        v_returned part, light_samples._indirect)."""
+        if "bounced" not in comps:
             return None
         from pbvol_cli.geometry.raycast import TriangleCaster
         from pbvol_cli.pointbased.bounced import BOUNCED_KERNEL, bounced_samples
 
-        # the light arriving at the boundary points: one point per gather ray for each estimator (the reflected
-        # light is smooth; the boundary points average it)
-        gather = np.array([1, pbl.cut_size, pbl.clamp, 1.0, 1.0, 1.0, 1, 1])
-        caster = TriangleCaster(built.vertices, built.faces, threads)
-        pool = ThreadPoolExecutor(threads) if threads > 1 else None
-        try:
-            b = bounced_samples(built, caster, pool, threads, m, md,
-                                lambda smp: MediumData(smp, m, built.media[m], media_tables[m], pbl.beam_width),
-                                pbl.bounce_samples, pbl.bounce_generations, max(1, pbl.segments_per_beam // 4),
-                                pbl.max_internal_reflections, gather, s)
-        finally:
-            caster.close()
-            if pool is not None:
-                pool.shutdown()
-        return None if b is None else MediumData(b, m, built.media[m], media_tables[m], BOUNCED_KERNEL)
+        # (their cross-sections scaled so that the bounced samples' kernel keeps the lights' beams' width)
+        back = returned_samples(samples, m, (pbl.beam_width / BOUNCED_KERNEL) ** 2)
+        b = None
+        if pbl.bounce_generations > 0 and md.count > 0:
+            # the returned light's own reflections on the boundary too (milk on a table: its returned light is a
+            # third of the table's share)
+            extra = MediumData(back, m, built.media[m], media_tables[m], BOUNCED_KERNEL) if len(back.v_len) else None
+            # the light arriving at the boundary points: one point per gather ray for each estimator (the
+            # reflected light is smooth; the boundary points average it)
+            gather = np.array([1, pbl.cut_size, pbl.clamp, 1.0, 1.0, 1.0, 1, 1])
+            caster = TriangleCaster(built.vertices, built.faces, threads)
+            pool = ThreadPoolExecutor(threads) if threads > 1 else None
+            try:
+                b = bounced_samples(built, caster, pool, threads, m, md,
+                                    lambda smp: MediumData(smp, m, built.media[m], media_tables[m], pbl.beam_width),
+                                    pbl.bounce_samples, pbl.bounce_generations, max(1, pbl.segments_per_beam // 4),
+                                    pbl.max_internal_reflections, gather, s, extra)
+            finally:
+                caster.close()
+                if pool is not None:
+                    pool.shutdown()
+        if b is not None:
+            back = SimpleNamespace(**{k: np.concatenate([getattr(b, k), getattr(back, k)]) for k in SAMPLE_KEYS})
+        if len(back.v_len) == 0:
+            return None
+        return MediumData(back, m, built.media[m], media_tables[m], BOUNCED_KERNEL)
 
     W, H = int(built.camera[12]), int(built.camera[13])
     prog, update = progress_bar(opts.quiet, f"pbl {W}x{H} {spp} spp")

@@ -137,13 +137,16 @@ def _robust_total(power: np.ndarray) -> np.ndarray:
 
 
 def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, source, make_data, count: int,
-                    generations: int, segments: int, max_reflections: int, settings: np.ndarray, seed: int):
+                    generations: int, segments: int, max_reflections: int, settings: np.ndarray, seed: int,
+                    extra=None):
     """Volume samples of the light scattered in `medium` and reflected by its boundary, `generations` times.
 
-    source: the medium's MediumData (the lights' volume samples); make_data(samples) builds one from a namespace
-    of v_* arrays; settings: the camera kernel's settings array (all components on). Returns the union of the
-    generations as such a namespace, or None when the boundary reflects nothing."""
-    from pbvol_cli.render.pbl import bounced_share, eval_segments, segment_planes
+    source: the medium's MediumData (the lights' volume samples); extra: another MediumData whose scattered light
+    the first generation gathers too (the light the scene sent back, render/pbl.py: returned_samples), or None;
+    make_data(samples) builds one from a namespace of v_* arrays; settings: the camera kernel's settings array
+    (all components on). Returns the union of the generations as such a namespace, or None when the boundary
+    reflects nothing."""
+    from pbvol_cli.render.pbl import SAMPLE_KEYS, bounced_share, eval_segments, segment_planes
 
     pos, nin, sid, area, spacing = boundary_points(bs, medium, count, seed)
     n = len(pos)
@@ -156,11 +159,13 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
         _cosine_directions(nin, seed, 0xB0 + 4 * g, w, rng)
         t, _, ng, _ = closest_surface_hits(caster, bs, pos + bs.eps * nin, w)
         ok = np.flatnonzero(np.isfinite(t))
-        out = np.zeros((n, 3, 3))
-        eval_segments(pool, threads, ok, pos + bs.eps * nin, w, np.ones((n, 3)), np.where(np.isfinite(t), t, 0.0),
-                      rng, bs.media[medium], data.kernel_tuple(), settings, out, np.zeros(n, np.int64),
-                      segment_planes(pos + bs.eps * nin, w, t, nin, ng))
-        L = out.sum(axis=1)
+        L = np.zeros((n, 3))
+        planes = segment_planes(pos + bs.eps * nin, w, t, nin, ng)
+        for d in ([data] if g > 0 or extra is None else [data, extra]):
+            out = np.zeros((n, 3, 3))
+            eval_segments(pool, threads, ok, pos + bs.eps * nin, w, np.ones((n, 3)), np.where(np.isfinite(t), t, 0.0),
+                          rng.copy(), bs.media[medium], d.kernel_tuple(), settings, out, np.zeros(n, np.int64), planes)
+            L += out.sum(axis=1)
         bpos, bdir, bpow = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
         # the glass wall behind the boundary, seen by the light leaving along -w from just inside x_j
         inner = pos + bs.eps * nin
@@ -197,5 +202,4 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
         with np.errstate(divide="ignore", invalid="ignore"):
             r = np.clip(np.nan_to_num(robust[-1] / robust[-2]), 0.0, TAIL_RATIO_MAX)
         gens[-1].v_power = gens[-1].v_power / (1.0 - r)[None, :]
-    return SimpleNamespace(**{k: np.concatenate([getattr(x, k) for x in gens])
-                              for k in ("v_start", "v_dir", "v_len", "v_power", "v_area", "v_medium", "v_ends", "v_plane")})
+    return SimpleNamespace(**{k: np.concatenate([getattr(x, k) for x in gens]) for k in SAMPLE_KEYS})

@@ -36,7 +36,7 @@ class LightSamples:
     s_nrm: np.ndarray  # (n, 3) exterior normals
     s_surface: np.ndarray  # (n,) surface ids
     s_area: np.ndarray  # (n,) area each represents
-    s_irradiance: np.ndarray  # (n, 3) direct irradiance from the lights (W / area), visibility included
+    s_irradiance: np.ndarray  # (n, 3) irradiance (W / area): direct from the lights, visibility included, and indirect
     v_start: np.ndarray  # (m, 3) segment starts
     v_dir: np.ndarray  # (m, 3) propagation directions (unit)
     v_len: np.ndarray  # (m,) segment lengths
@@ -46,9 +46,11 @@ class LightSamples:
     v_ends: np.ndarray  # (m,) 1: the segment starts on the boundary, 2: it ends there (both: 3)
     v_plane: np.ndarray  # (m, 8) the boundary's tangent planes where the segment's beam enters and leaves,
     #                      (n, q) each: n . x = q on it, n pointing from the segment to it
+    v_returned: np.ndarray  # (m,) int8: 1 where the light scattered in a medium before it reached the surface
+    #                         sample (the medium's light that left it and a table sends back): the bounced layer's
 
     FIELDS = ("s_pos", "s_nrm", "s_surface", "s_area", "s_irradiance", "v_start", "v_dir", "v_len", "v_power",
-              "v_area", "v_medium", "v_ends", "v_plane")
+              "v_area", "v_medium", "v_ends", "v_plane", "v_returned")
 
     def arrays(self) -> dict:
         return {k: getattr(self, k) for k in self.FIELDS}
@@ -59,7 +61,7 @@ class LightSamples:
         n, m = len(ls.s_pos), len(ls.v_start)
         shapes_ok = (ls.s_nrm.shape == (n, 3) and ls.s_irradiance.shape == (n, 3) and ls.v_dir.shape == (m, 3)
                      and ls.v_power.shape == (m, 3) and len(ls.v_len) == m and len(ls.v_area) == m
-                     and len(ls.v_ends) == m and ls.v_plane.shape == (m, PLANE_COLS))
+                     and len(ls.v_ends) == m and ls.v_plane.shape == (m, PLANE_COLS) and len(ls.v_returned) == m)
         if not shapes_ok or not all(np.all(np.isfinite(getattr(ls, k))) for k in ("v_start", "v_power", "v_len")):
             raise ValueError("inconsistent light samples")
         return ls
@@ -296,13 +298,19 @@ def _lit(caster, bs, li, pos, nrm, eps, seed, wdir, dist, E):
                        np.full(len(idx), li, np.int64))]
 
 
-def _indirect(caster, bs, pos, nrm, eps, seed):
-    """Indirect diffuse light at the surface samples (sec. 3.4), one bounce: from each sample a cosine-weighted
-    direction; where it meets a diffuse surface, that point's direct light (one sample per light) reflected,
-    L = albedo / pi E_direct, arrives with irradiance-equivalent L pi (= L cos / pdf). Directions reaching a light
-    or the environment are the direct connections' part. Returns (sample indices, directions toward the
-    light's origin, irradiance)."""
-    from pbvol_cli.geometry.scene_build import DIFFUSE
+def _indirect(caster, bs, pos, nrm, sid, eps, seed, returned_orders="1,2,3+"):
+    """Indirect light at the surface samples (sec. 3.4), path traced: from each sample a cosine-weighted
+    direction; where it first meets a surface that is not one of the sample's own object's transparent layers,
+    the radiance leaving that surface toward the sample, by the reference path tracer (render/volpath.py:
+    trace_radiance): every bounce, light through glass onto the table, and the media's own light that left them
+    and comes back. Arriving with irradiance-equivalent pi L (cosine sampling). Not taken here: directions that
+    meet a light or the environment first (the direct connections' part), and the object's own transparent
+    layers (light through a glass's wall reaches the liquid as the beams of the samples on the glass's outside).
+
+    Returns (sample indices, directions toward the light's origin, irradiance of the light that has not scattered
+    in a medium on its way, irradiance of the light that has: the bounced layer's)."""
+    from pbvol_cli.render.intersect import light_hits
+    from pbvol_cli.render.volpath import trace_radiance
 
     n = len(pos)
     rng = np.random.default_rng([seed, 0x1D1])
@@ -314,19 +322,19 @@ def _indirect(caster, bs, pos, nrm, eps, seed):
     t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
     t2 = np.cross(nrm, t1)
     wdir = local[:, :1] * t1 + local[:, 1:2] * t2 + local[:, 2:] * nrm
-    t, s, ng, _ = closest_surface_hits(caster, bs, pos + eps * nrm, wdir)
-    hit = np.flatnonzero(np.isfinite(t) & (s >= 0))
-    hit = hit[bs.surfaces[s[hit], 0] == DIFFUSE]
-    x = pos[hit] + t[hit, None] * wdir[hit]
-    facing = ng[hit] * np.where(np.sum(ng[hit] * wdir[hit], axis=1) < 0, 1.0, -1.0)[:, None]
-    E_x = np.zeros((len(hit), 3))
-    for li in range(len(bs.lights)):
-        wd, dist, E = np.zeros((len(hit), 3)), np.zeros(len(hit)), np.zeros((len(hit), 3))
-        vis = _lit(caster, bs, li, x, facing, eps, seed + 0x5EED, wd, dist, E)
-        E_x[vis] += E[vis]
-    E_in = bs.surfaces[s[hit], 5:8] * E_x  # (albedo / pi) E_x pi
-    keep = E_in.max(axis=1) > 0
-    return hit[keep], wdir[hit[keep]], E_in[keep]
+    origin = pos + eps * nrm
+    t, s, _, _ = closest_surface_hits(caster, bs, origin, wdir)
+    hit = np.isfinite(t) & (s >= 0)
+    sc = np.where(hit, s, 0)
+    own_layer = (np.isin(bs.surfaces[sc, 0], (DIELECTRIC, NULL))
+                 & (bs.surface_shape[sc] == bs.surface_shape[sid]))
+    tl, li = np.empty(n), np.empty(n, np.int64)
+    light_hits(bs.lights, origin, wdir, np.where(hit, t, np.inf), tl, li, np.full(n, -1, np.int64))
+    idx = np.flatnonzero(hit & ~own_layer & (li < 0))
+    E0 = np.pi * trace_radiance(bs, caster, origin[idx], wdir[idx], seed + 0x1D2, "0")
+    E1 = np.pi * trace_radiance(bs, caster, origin[idx], wdir[idx], seed + 0x1D3, returned_orders)
+    keep = (E0.max(axis=1) > 0) | (E1.max(axis=1) > 0)
+    return idx[keep], wdir[idx[keep]], E0[keep], E1[keep]
 
 
 REFLECTION_ROULETTE = 1e-4  # reflected beams weaker than this share of their initial power play roulette (1e-2: 2x the
@@ -368,9 +376,12 @@ def beam_segments(caster, bs: BuiltScene, bpos, bdir, bpow, bmed, barea, bnrm, s
 
 
 def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max_reflections: int,
-                        max_layers: int, seed: int, threads: int = 2, progress=None) -> LightSamples:
+                        max_layers: int, seed: int, threads: int = 2, progress=None,
+                        returned_orders: str = "1,2,3+") -> LightSamples:
     """Surface samples on every medium-holding object's outer layer, their beams and the volume samples.
-    progress(done, total), if given, is called after each step (lights, indirect light, reflection passes)."""
+    progress(done, total), if given, is called after each step (lights, indirect light, reflection passes).
+    returned_orders: the scattering orders the returned light (v_returned) keeps (tests compare it with volpath
+    --orders)."""
     steps = len(bs.lights) + 2 + max_reflections + 1
     step = [0]
 
@@ -391,13 +402,14 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
     caster = TriangleCaster(bs.vertices, bs.faces, threads)
     eps = bs.eps
     irr = np.zeros((n, 3))
-    beams = []  # (pos, dir, power, medium, cross-section)
+    beams = []  # (pos, dir, power, medium, cross-section, boundary normal)
+    returned = []  # the same for light that scattered in a medium before it reached the sample
 
     layer_rng = np.random.default_rng([seed, 0x1A7E])  # Fresnel choices inside transparent layers
 
-    def enter(vis, wdir, E):
-        """Beams from samples vis lit from directions wdir with irradiance E: refracted in through the outer
-        surface, then through transparent layers until a medium is reached."""
+    def enter(vis, wdir, E, into):
+        """Beams (appended to `into`) from samples vis lit from directions wdir with irradiance E: refracted in
+        through the outer surface, then through transparent layers until a medium is reached."""
         bpos, bdir = pos[vis].copy(), -wdir
         bpow = E * area
         bmed = np.full(len(vis), -1, np.int64)
@@ -419,22 +431,28 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
             bpos[walk], bdir[walk], bpow[walk], bmed[walk], bcos[walk] = p_, d_, w_, m_, c_
             alive[walk], bn[walk] = sub, n_
         keep = alive & (bmed >= 0)
-        beams.append((bpos[keep], bdir[keep], bpow[keep], bmed[keep], area * np.abs(bcos[keep]), bn[keep]))
+        into.append((bpos[keep], bdir[keep], bpow[keep], bmed[keep], area * np.abs(bcos[keep]), bn[keep]))
 
     for li in range(len(bs.lights)):
         wdir, dist, E = np.zeros((n, 3)), np.zeros(n), np.zeros((n, 3))
         vis = _lit(caster, bs, li, pos, nrm, eps, seed, wdir, dist, E)
         irr[vis] += E[vis]
-        enter(vis, wdir[vis], E[vis])
+        enter(vis, wdir[vis], E[vis], beams)
         advance()
-    vis, wdir, E = _indirect(caster, bs, pos, nrm, eps, seed)
-    irr[vis] += E
-    enter(vis, wdir, E)
+    vis, wdir, E0, E1 = _indirect(caster, bs, pos, nrm, sid, eps, seed, returned_orders)
+    irr[vis] += E0 + E1
+    enter(vis, wdir, E0, beams)
+    enter(vis, wdir, E1, returned)
     advance()
-    bpos, bdir, bpow, bmed, barea, bnrm = (np.concatenate([b[i] for b in beams]) for i in range(6))
-    cat = beam_segments(caster, bs, bpos, bdir, bpow, bmed, barea, bnrm, segments, max_reflections, seed, advance)
+    parts = []
+    for group, s_off, adv in ((beams, 0, advance), (returned, 0x2E7, None)):
+        bpos, bdir, bpow, bmed, barea, bnrm = (np.concatenate([b[i] for b in group]) for i in range(6))
+        parts.append(beam_segments(caster, bs, bpos, bdir, bpow, bmed, barea, bnrm, segments, max_reflections,
+                                   seed + s_off, adv))
+    cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    flag = np.concatenate([np.zeros(len(parts[0]["len"]), np.int8), np.ones(len(parts[1]["len"]), np.int8)])
     caster.close()
     if progress is not None:
         progress(steps, steps)
     return LightSamples(pos, nrm, sid, np.full(n, area), irr, cat["start"], cat["dir"], cat["len"], cat["power"],
-                        cat["area"], cat["medium"], cat["ends"], cat["plane"])
+                        cat["area"], cat["medium"], cat["ends"], cat["plane"], flag)

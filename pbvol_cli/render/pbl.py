@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 import time
 from concurrent.futures import ThreadPoolExecutor
+from types import SimpleNamespace
 
 import numpy as np
 from numba import njit, prange
@@ -289,13 +290,31 @@ def near_field_radius(start, dirs, length, rb) -> float:
     return min(NEAR_FIELD_RADII * float(np.median(rb)), r_count)
 
 
+SAMPLE_KEYS = ("v_start", "v_dir", "v_len", "v_power", "v_area", "v_medium", "v_ends", "v_plane")
+
+
+def returned_samples(samples, medium: int, area_scale: float = 1.0) -> SimpleNamespace:
+    """The volume samples of `medium` whose light scattered in a medium before it reached the surface samples
+    (v_returned == 1: light that left and the scene sent back; the bounced layer's), as a namespace of v_*
+    arrays, cross-sections scaled by area_scale."""
+    sel = (samples.v_medium == medium) & (samples.v_returned == 1)
+    out = SimpleNamespace(**{k: getattr(samples, k)[sel] for k in SAMPLE_KEYS})
+    out.v_area = out.v_area * area_scale
+    return out
+
+
 class MediumData:
     """A medium's light samples prepared for the kernels: octree, per-sample arrays, its three tables."""
 
     def __init__(self, samples, medium: int, media_row: np.ndarray, tables: list, beam_width: float = 1.0):
+        """samples: LightSamples (its volume samples of light that has not scattered before reaching the surface
+        samples: v_returned == 0) or a namespace of v_* arrays (all taken)."""
         from pbvol_cli.pointbased.octree import build_octree
 
         sel = samples.v_medium == medium
+        returned = getattr(samples, "v_returned", None)
+        if returned is not None:
+            sel &= returned == 0
         self.start = np.ascontiguousarray(samples.v_start[sel])
         self.dir = np.ascontiguousarray(samples.v_dir[sel])
         self.len = np.ascontiguousarray(samples.v_len[sel])

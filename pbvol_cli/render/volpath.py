@@ -36,7 +36,7 @@ from pbvol_cli.geometry.scene_build import DIELECTRIC, DIFFUSE, MIRROR, NULL, Bu
 from pbvol_cli.physics.fresnel import fresnel_dielectric, reflect, refract
 from pbvol_cli.physics.lights import ENVIRONMENT, emitted_toward, light_pdf, light_sample
 from pbvol_cli.physics.phase import phase_eval, phase_sample
-from pbvol_cli.physics.sampling import cosine_hemisphere, power_heuristic, rand
+from pbvol_cli.physics.sampling import cosine_hemisphere, power_heuristic, rand, seed_state
 from pbvol_cli.render.camera import generate_camera_rays
 from pbvol_cli.render.intersect import analytic_distance_bound, analytic_hit, mesh_shading_normal
 
@@ -518,6 +518,78 @@ def _cast_into(caster: TriangleCaster, idx, origins, dirs, hits):
     hits[0][idx], hits[1][idx], hits[2][idx], hits[3][idx], hits[4][idx] = t, prim, u, v, ng
 
 
+def _run_batch(P: Paths, n: int, caster: TriangleCaster, S, misc) -> tuple[int, int]:
+    """Trace the first n paths of P (positions, directions and random streams set) to their end; their radiance
+    accumulates in P.L. Returns (rays cast, kernel steps)."""
+    st, sh, hits = P.state(), P.shadow(), P.hits()
+    init_paths(n, st)
+    P.status[n:] = DEAD
+    P.sh_active[:] = False
+    casts = steps = 0
+    while True:
+        need = np.flatnonzero(P.status[:n] == NEED_CAST)
+        if len(need) and not caster.empty:
+            _cast_into(caster, need, P.pos, P.dir, hits)
+            casts += len(need)
+        elif len(need):
+            P.hit_t[need] = INF
+            P.hit_prim[need] = -1
+        active = np.flatnonzero(P.status[:n] != DEAD)
+        if len(active) == 0:
+            break
+        advance_paths(active, S, misc, st, sh, hits)
+        steps += 1
+        sh_idx = np.flatnonzero(P.sh_active[:n])
+        fresh = np.zeros(len(sh_idx), np.int8)
+        while len(sh_idx):
+            advance_shadows(sh_idx, fresh, S, misc, sh, hits, P.L)
+            keep = P.sh_active[sh_idx]
+            sh_idx, fresh = sh_idx[keep], fresh[keep]
+            if len(sh_idx):
+                _cast_into(caster, sh_idx, P.sh_pos, P.sh_dir, hits)
+                casts += len(sh_idx)
+                fresh[:] = 1
+    return casts, steps
+
+
+def _misc(bs: BuiltScene, max_depth: int, rr_depth: int, orders: str | None) -> np.ndarray:
+    mask, top = orders_mask(orders)
+    misc = np.zeros(8)
+    misc[M_EPS], misc[M_MAXDEPTH], misc[M_RRDEPTH] = bs.eps, max_depth, rr_depth
+    misc[M_ORDERS], misc[M_MAXORDER] = mask, top
+    misc[M_HASMESH] = float(len(bs.faces) > 0)
+    misc[M_NLIGHTS] = len(bs.lights)
+    return misc
+
+
+@njit(parallel=True, cache=True)
+def _seed_streams(seed, stream, n, rng):
+    for k in prange(n):
+        rng[k] = seed_state(seed, stream, k)
+
+
+def trace_radiance(bs: BuiltScene, caster: TriangleCaster, origins: np.ndarray, dirs: np.ndarray, seed: int,
+                   orders: str | None, max_depth: int = 1000, rr_depth: int = 8,
+                   batch_paths: int = 262144) -> np.ndarray:
+    """Radiance (n, 3) arriving at origins from dirs (the rays start outside every medium), one path each, with
+    the contributions of the requested scattering orders (volume scattering events on the path) only. Path k's
+    random stream depends only on (seed, k). Emission met by the first segment counts like any other."""
+    n_all = len(origins)
+    out = np.zeros((n_all, 3))
+    if n_all == 0:
+        return out
+    misc = _misc(bs, max_depth, rr_depth, orders)
+    S = scene_tuple(bs)
+    P = Paths(min(batch_paths, n_all))
+    for a in range(0, n_all, batch_paths):
+        n = min(batch_paths, n_all - a)
+        P.pos[:n], P.dir[:n] = origins[a:a + n], dirs[a:a + n]
+        _seed_streams(seed, 0x7A0 + a // batch_paths, n, P.rng)
+        _run_batch(P, n, caster, S, misc)
+        out[a:a + n] = P.L[:n]
+    return out
+
+
 def scene_tuple(bs: BuiltScene):
     return (bs.tri_surface, bs.tri_normals, bs.spheres, bs.surfaces, bs.media, bs.lights,
             bs.grid_params, bs.grid_cells)
@@ -531,12 +603,7 @@ def render_volpath(bs: BuiltScene, spp: int, seed: int, max_depth: int, rr_depth
     """
     W, H = int(bs.camera[12]), int(bs.camera[13])
     npix = W * H
-    mask, top = orders_mask(orders)
-    misc = np.zeros(8)
-    misc[M_EPS], misc[M_MAXDEPTH], misc[M_RRDEPTH] = bs.eps, max_depth, rr_depth
-    misc[M_ORDERS], misc[M_MAXORDER] = mask, top
-    misc[M_HASMESH] = float(len(bs.faces) > 0)
-    misc[M_NLIGHTS] = len(bs.lights)
+    misc = _misc(bs, max_depth, rr_depth, orders)
     S = scene_tuple(bs)
     caster = TriangleCaster(bs.vertices, bs.faces, threads)
     total = npix * spp
@@ -544,7 +611,6 @@ def render_volpath(bs: BuiltScene, spp: int, seed: int, max_depth: int, rr_depth
     per_batch = max(npix, (batch_paths // npix) * npix) if npix <= batch_paths else batch_paths
     P = Paths(min(per_batch, total))
     image = np.zeros((npix, 3))
-    st, sh, hits = P.state(), P.shadow(), P.hits()
     t0 = time.perf_counter()
     done = 0
     casts = 0
@@ -552,32 +618,8 @@ def render_volpath(bs: BuiltScene, spp: int, seed: int, max_depth: int, rr_depth
     while done < total:
         n = min(per_batch, total - done)
         generate_camera_rays(bs.camera, seed, done, n, P.pos, P.dir, P.pixel, P.rng)
-        init_paths(n, st)
-        P.status[n:] = DEAD
-        P.sh_active[:] = False
-        while True:
-            need = np.flatnonzero(P.status[:n] == NEED_CAST)
-            if len(need) and not caster.empty:
-                _cast_into(caster, need, P.pos, P.dir, hits)
-                casts += len(need)
-            elif len(need):
-                P.hit_t[need] = INF
-                P.hit_prim[need] = -1
-            active = np.flatnonzero(P.status[:n] != DEAD)
-            if len(active) == 0:
-                break
-            advance_paths(active, S, misc, st, sh, hits)
-            steps += 1
-            sh_idx = np.flatnonzero(P.sh_active[:n])
-            fresh = np.zeros(len(sh_idx), np.int8)
-            while len(sh_idx):
-                advance_shadows(sh_idx, fresh, S, misc, sh, hits, P.L)
-                keep = P.sh_active[sh_idx]
-                sh_idx, fresh = sh_idx[keep], fresh[keep]
-                if len(sh_idx):
-                    _cast_into(caster, sh_idx, P.sh_pos, P.sh_dir, hits)
-                    casts += len(sh_idx)
-                    fresh[:] = 1
+        c_, s_ = _run_batch(P, n, caster, S, misc)
+        casts, steps = casts + c_, steps + s_
         for c in range(3):
             image[:, c] += np.bincount(P.pixel[:n], weights=P.L[:n, c], minlength=npix)
         done += n

@@ -110,24 +110,32 @@ def test_beams_reach_a_liquid_through_the_glass(tmp_path):
                                            np.minimum(level - c[:, 1], c[:, 1] - 0.2)))
 
 
-def test_surface_samples_receive_indirect_light_from_a_diffuse_floor(tmp_path):
-    """Light straight down on a sphere (radius 1) whose bottom is d = 2 above a floor of albedo rho: a sample at the
-    bottom sees only the floor, of radiance rho E / pi, except the sphere's own shadow (a disc of radius 1 right
-    below it, solid-angle-cosine fraction 1 / (1 + d^2)): irradiance rho E (1 - 1 / (1 + d^2)). Mean over the
+@pytest.mark.parametrize("sigma_a", [50.0, 0.5])
+def test_surface_samples_receive_indirect_light_from_a_diffuse_floor(tmp_path, sigma_a):
+    """Light straight down on an absorbing sphere (radius 1, index-matched) whose bottom is d = 2 above a floor of
+    albedo rho: a sample at the bottom sees only the floor, of radiance rho E / pi, except under the sphere (a disc
+    of radius 1, solid-angle-cosine fraction 1 / (1 + d^2)), where the light arrives through the sphere with its
+    transmittance T(r) = exp(-sigma_a 2 sqrt(1 - r^2)): irradiance rho E (1 - 1 / (1 + d^2) + int_0^1 2 d^2 r T(r)
+    / (d^2 + r^2)^2 dr). The opaque sphere (sigma_a 50) casts a full shadow; through the clear one (0.5) the light
+    reaches the floor only because the indirect light is path traced (shadow rays stop at surfaces). Mean over the
     samples near the bottom within 4 standard errors (one cosine-weighted direction per sample)."""
     E, rho, d = 2.0, 0.6, 2.0
     scene = {"camera": camera(), "lights": [{"type": "directional", "direction": [0, -1, 0], "irradiance": E}],
              "shapes": [{"type": "sphere", "radius": 1.0, "center": [0, 0, 0], "interface": "null",
-                         "medium": {"sigma_a": 0.5, "sigma_s": 0.5}},
+                         "medium": {"sigma_a": sigma_a, "sigma_s": 1e-9}},
                         {"type": "quad", "center": [0, -1.0 - d, 0], "size": [400.0, 400.0], "interface": "diffuse",
                          "albedo": rho}]}
     ls = place_light_samples(build(tmp_path, scene), 80000, 2, 0, 4, seed=3)
     bottom = ls.s_nrm[:, 1] < -0.99
     irr = ls.s_irradiance[bottom, 0]
     assert bottom.sum() > 200
-    expected = rho * E * (1 - 1 / (1 + d * d))
+    r = (np.arange(20000) + 0.5) / 20000
+    through = np.mean(2 * d * d * r * np.exp(-sigma_a * 2 * np.sqrt(1 - r * r)) / (d * d + r * r) ** 2)
+    expected = rho * E * (1 - 1 / (1 + d * d) + through)
     se = irr.std() / np.sqrt(len(irr))
     assert abs(irr.mean() - expected) < 4 * se, (irr.mean(), expected, se)
+    if sigma_a < 1:
+        assert rho * E * through > 6 * se  # the light through the sphere is resolved: without it the mean fails
     # and the indirect light enters as beams: power in from below the equator
     assert ls.v_power[ls.v_dir[:, 1] > 0.5].sum() > 0
 
