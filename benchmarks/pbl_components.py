@@ -8,8 +8,9 @@ For each scene: one pbl render (its layers single, double, multiple, bounced) an
 each as two halves with different seeds (kept in the cache). Printed per component and channel: the ratio of image means pbl / volpath (the
 bias that survives averaging) and the relMSE of pbl against the volpath mean, next to the relMSE of the
 reference's own noise (a quarter of its halves' relMSE against each other) and the ratio of the halves' means
-(a reference whose halves differ by more than a few % is not converged: its order's paths are heavy-tailed). Light that reaches the medium only
-through a diffuse surface (light -> table -> medium) is not in pbl's light samples: scenes with a table show it.
+(a reference whose halves differ by more than a few % is not converged: its order's paths are heavy-tailed).
+Light that scattered in the medium, left it and came back from the scene (a table) is in pbl's bounced layer (the
+light samples' v_returned part): of order 2 and above, like the rest of that layer.
 """
 
 from __future__ import annotations

@@ -337,6 +337,28 @@ def _indirect(caster, bs, pos, nrm, sid, eps, seed, returned_orders="1,2,3+"):
     return idx[keep], wdir[idx[keep]], E0[keep], E1[keep]
 
 
+RETURNED_BEAMS = 2000  # beams of returned light kept (thin_by_power) per light-sample set
+
+
+def thin_by_power(power: np.ndarray, target: int, rng) -> tuple[np.ndarray, np.ndarray]:
+    """Unbiased thinning of beams (n, 3) powers to about `target`: beam i is kept with probability
+    q_i = min(1, p_i / tau) (p_i its largest channel) and its power divided by q_i, tau chosen so that the
+    q_i sum to the target; a kept beam carries at least tau. Returns (kept indices, their powers)."""
+    p = power.max(axis=1) if len(power) else np.zeros(0)
+    if len(p) <= target or p.sum() <= 0:
+        return np.arange(len(p)), power
+    lo, hi = 0.0, float(p.max())
+    for _ in range(60):  # bisection on tau: sum(min(1, p / tau)) = target
+        tau = 0.5 * (lo + hi)
+        if np.minimum(1.0, p / max(tau, 1e-300)).sum() > target:
+            lo = tau
+        else:
+            hi = tau
+    q = np.minimum(1.0, p / max(hi, 1e-300))
+    keep = np.flatnonzero(rng.random(len(p)) < q)
+    return keep, power[keep] / q[keep, None]
+
+
 REFLECTION_ROULETTE = 1e-4  # reflected beams weaker than this share of their initial power play roulette (1e-2: 2x the
 # relMSE on the bumpy sphere, whose beams reflect many times: sparse, heavy survivors)
 
@@ -447,7 +469,15 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
     parts = []
     for group, s_off, adv in ((beams, 0, advance), (returned, 0x2E7, None)):
         bpos, bdir, bpow, bmed, barea, bnrm = (np.concatenate([b[i] for b in group]) for i in range(6))
-        parts.append(beam_segments(caster, bs, bpos, bdir, bpow, bmed, barea, bnrm, segments, max_reflections,
+        seg = segments
+        if group is returned:
+            # the returned light is diffuse and smooth, like the boundary's bounced light: fewer beams and
+            # segments (bumpy sphere on its floor, every returned beam kept at 16 segments: 1.8x the time, 1.8x
+            # the memory)
+            keep, bpow = thin_by_power(bpow, RETURNED_BEAMS, np.random.default_rng([seed, 0x2E8]))
+            bpos, bdir, bmed, barea, bnrm = bpos[keep], bdir[keep], bmed[keep], barea[keep], bnrm[keep]
+            seg = max(1, segments // 4)
+        parts.append(beam_segments(caster, bs, bpos, bdir, bpow, bmed, barea, bnrm, seg, max_reflections,
                                    seed + s_off, adv))
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     flag = np.concatenate([np.zeros(len(parts[0]["len"]), np.int8), np.ones(len(parts[1]["len"]), np.int8)])

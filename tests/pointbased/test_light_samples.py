@@ -172,3 +172,25 @@ def test_beams_inside_a_glass_wall_reflect_by_fresnel_choice(angle):
         else:
             assert d[0, 2] > 0 and pos[0, 2] > 1.0
             assert power[0, 0] == pytest.approx(1.0 - F if u < 0 else 1.0)
+
+
+def test_thinning_by_power_keeps_the_total_in_expectation_and_about_the_target_count():
+    """thin_by_power: over many draws the kept powers sum to the total per channel (unbiased); about `target`
+    beams are kept; the strong beams are always kept with their own power."""
+    from pbvol_cli.pointbased.light_samples import thin_by_power
+
+    rng = np.random.default_rng(5)
+    power = rng.pareto(1.5, (20000, 3)) * np.array([1.0, 0.5, 2.0])
+    power[:5] *= 1e4  # a few strong beams
+    sums, counts = [], []
+    for k in range(400):
+        keep, p = thin_by_power(power, 1000, np.random.default_rng(k))
+        sums.append(p.sum(axis=0))
+        counts.append(len(keep))
+        assert set(range(5)) <= set(keep.tolist()) and np.allclose(p[:5], power[:5])
+    sums = np.array(sums)
+    se = sums.std(axis=0) / np.sqrt(len(sums))
+    assert np.all(np.abs(sums.mean(axis=0) - power.sum(axis=0)) < 4 * se), (sums.mean(axis=0), power.sum(axis=0))
+    assert abs(np.mean(counts) - 1000) < 10
+    keep, p = thin_by_power(power[:10], 1000, rng)
+    assert len(keep) == 10 and np.array_equal(p, power[:10])  # fewer than the target: all kept as they are
