@@ -236,8 +236,8 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
         back = returned_samples(samples, m, (pbl.beam_width / BOUNCED_KERNEL) ** 2)
         b = None
         if pbl.bounce_generations > 0 and md.count > 0:
-            # the returned light's own reflections on the boundary too (milk on a table: its returned light is a
-            # third of the table's share)
+            # the returned light's own reflections on the boundary too (milk glass, mult+bounced / volpath 3+:
+            # 0.917 0.927 0.945 -> 0.962 0.966 0.978)
             extra = MediumData(back, m, built.media[m], media_tables[m], BOUNCED_KERNEL) if len(back.v_len) else None
             # the light arriving at the boundary points: one point per gather ray for each estimator (the
             # reflected light is smooth; the boundary points average it)
