@@ -418,7 +418,7 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
     tri = np.isin(bs.tri_surface, outer)
     sph = bs.spheres[np.isin(bs.spheres[:, 4].astype(np.int64), outer)]
     advance()
-    pos, nrm, sid, area, _ = poisson_disk(bs.vertices, bs.faces[tri], bs.tri_normals[tri], bs.tri_surface[tri], sph,
+    pos, nrm, sid, area, spacing = poisson_disk(bs.vertices, bs.faces[tri], bs.tri_normals[tri], bs.tri_surface[tri], sph,
                                           surface_samples, seed)
     n = len(pos)
     caster = TriangleCaster(bs.vertices, bs.faces, threads)
@@ -463,6 +463,16 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
         advance()
     vis, wdir, E0, E1 = _indirect(caster, bs, pos, nrm, sid, eps, seed, returned_orders)
     irr[vis] += E0 + E1
+    if len(vis):
+        # one path per sample is heavy-tailed (a table point's path that finds the light through the glass by
+        # chance: oil glass, 10 pixels held 73 % of the 16-spp error); each sample's indirect power is shared
+        # among its neighbours, the total kept, as the bounced generations do
+        from pbvol_cli.pointbased.bounced import SMOOTHING, _share_among_neighbours
+
+        for E in (E0, E1):
+            shared = np.zeros_like(E)
+            _share_among_neighbours(pos[vis], E, SMOOTHING * spacing, shared)
+            E[:] = shared
     enter(vis, wdir, E0, beams)
     enter(vis, wdir, E1, returned)
     advance()
