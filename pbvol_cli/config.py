@@ -263,9 +263,11 @@ class PblSettings(Strict):
                             "(0: a new set every pass; 1: the cached set only)")
     roulette: float = Field(0.1, ge=0, description="camera branches of weight below this evaluate the medium "
                             "with probability weight / roulette (0: always)")
-    surface_paths: int = Field(8, ge=1, description="camera paths per pixel and pass: the surfaces (path traced, "
-                               "cheap) take them all, the medium one of them chosen at random (weight "
-                               "surface_paths, unbiased): the surfaces' noise ruled pbl's image")
+    surface_paths: int = Field(0, ge=0, le=4096, description="camera paths per pixel and pass: the surfaces (path "
+                               "traced, cheap) take them all, the medium one of them chosen at random (weight "
+                               "surface_paths, unbiased); 0: auto, 8 for the first two passes, then per pass "
+                               "from the surfaces' and the medium's measured variances (render/pbl.py "
+                               "auto_surface_paths)")
     bounce_samples: int = Field(1000, ge=16, description="boundary points gathering the scattered light that the "
                                 "medium's boundary reflects back (sec. 3.10, the bounced layer)")
     bounce_generations: int = Field(3, ge=0, description="reflections of scattered light followed (0: none)")

@@ -130,8 +130,11 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
         "orders": opts.orders or "all", "max_depth": max_depth,
         **{f"stage_{k}": round(v, 4) for k, v in stages.items()},
     }
-    if opts.method == "pbl":  # a pass's camera paths per pixel: the surfaces saw spp x this many
-        meta["surface_paths"] = scene.render.pbl.surface_paths
+    if opts.method == "pbl":  # camera paths per pixel and pass (the mean over passes; 0 in the setting: auto)
+        ks = stats["surface_paths"]
+        meta["surface_paths"] = float(np.mean(ks))
+        meta["surface_paths_per_pass"] = ",".join(str(k) for k in ks)
+        meta["surface_paths_setting"] = scene.render.pbl.surface_paths
     write_exr(out_path, img.astype(np.float32), meta,
               layers={k: v.astype(np.float32) for k, v in layers.items()} if layers else None)
     if preview is not None:
@@ -260,7 +263,7 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
         return MediumData(back, m, built.media[m], media_tables[m], BOUNCED_KERNEL)
 
     W, H = int(built.camera[12]), int(built.camera[13])
-    prog, update = progress_bar(opts.quiet, f"pbl {W}x{H} {spp} spp")
+    prog, update = progress_bar(opts.quiet, f"pbl {W}x{H} {spp} spp", "pixel samples")
     settings = {"kmax": pbl.kmax, "kmax_scattered": pbl.kmax_scattered, "cut_size": pbl.cut_size, "clamp": pbl.clamp,
                 "components": comps, "max_split_depth": pbl.max_split_depth, "roulette": pbl.roulette,
                 "diffuse_bounces": pbl.diffuse_bounces, "kmax_diffuse": pbl.kmax_diffuse,

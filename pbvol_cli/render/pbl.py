@@ -347,52 +347,121 @@ class MediumData:
                 self.rb, self.tabs, self.ends, self.plane, self.r_near)
 
 
+# surface_paths = 0 (auto): the first two passes trace AUTO_FIRST_PATHS paths per pixel; from then on each pass
+# takes k = sqrt(PASS_COST_RATIO S1 / M) (auto_surface_paths), measured on the passes before it
+AUTO_FIRST_PATHS = 8
+AUTO_MAX_PATHS = 128
+PASS_COST_RATIO = 20.0  # a pass's medium work (estimators, per-pass light and bounced samples) over one surface
+# path per pixel, measured at 96x96 (4 spp, 8 and 32 paths): oil glass 3.5 s / 0.115 s = 30, wine glass 2.4 s /
+# 0.145 s = 16. The optimum is flat in it (k goes as its square root; 2x off costs about 6 % of the efficiency),
+# and a constant keeps the image independent of timings (the same seed gives the same image)
+
+
+def auto_surface_paths(s1: float, m: float) -> int:
+    """Camera paths per pixel for the next pass. A pass with k paths costs about c (k + R) (R = PASS_COST_RATIO)
+    and leaves a variance S1 / k + M (S1: one surface path's, M: the medium evaluation's, both relative as
+    compare's relMSE): the product, the error at equal time, is least at k = sqrt(R S1 / M)."""
+    if not s1 > 0.0:
+        return 1
+    if not m > 0.0:
+        return AUTO_MAX_PATHS
+    return int(min(AUTO_MAX_PATHS, max(1, round(math.sqrt(PASS_COST_RATIO * s1 / m)))))
+
+
+class _PassStatistics:
+    """The two variances auto_surface_paths weighs, from the passes so far, relative per pixel and channel as
+    compare's relMSE (over the image so far squared + 0.01): the surface paths' spread within a pass (one path's
+    variance) and the medium's from pass to pass (one evaluation per pixel and pass)."""
+
+    def __init__(self, npix: int):
+        self.surface_var = np.zeros((npix, 3))  # sum over passes of the within-pass variance of one path
+        self.surface_passes = 0
+        self.medium_sum, self.medium_sq = np.zeros((npix, 3)), np.zeros((npix, 3))
+        self.passes = 0
+
+    def add(self, k: int, surface_sum, surface_sq, medium):
+        """A pass: its per-pixel sum and sum of squares over its k surface paths, and its medium estimate."""
+        if k > 1:
+            self.surface_var += np.maximum(surface_sq - surface_sum ** 2 / k, 0.0) / (k - 1)
+            self.surface_passes += 1
+        self.medium_sum += medium
+        self.medium_sq += medium ** 2
+        self.passes += 1
+
+    def next_paths(self, image) -> int | None:
+        """k for the next pass, or None while two passes (one of them with k > 1) are not yet in."""
+        if self.passes < 2 or self.surface_passes < 1:
+            return None
+        den = image ** 2 + 1e-2
+        s1 = float((self.surface_var / self.surface_passes / den).mean())
+        p = self.passes
+        m = float((np.maximum(self.medium_sq - self.medium_sum ** 2 / p, 0.0) / (p - 1) / den).mean())
+        return auto_surface_paths(s1, m)
+
+
 def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, settings: dict, threads: int,
                progress=None):
     """Renders spp passes; pass p uses the light samples media_for_pass(p) ({medium: (MediumData of the lights'
-    samples, MediumData of the bounced samples or None)}). A pass traces settings["surface_paths"] (k) camera
-    paths per pixel: all of them shade surfaces, and one of them, chosen uniformly at random per pixel and pass,
-    also evaluates the medium, its medium terms weighted by k. The pixel's estimate stays unbiased and the
-    medium's cost per pass is that of one path, while the surfaces' noise (path traced like volpath's, and most
-    of pbl's image noise: 91 % on the oil glass, half on the milk glass) falls k times. Returns (image (H, W, 3),
-    layers {name: (H, W, 3)}, stats)."""
+    samples, MediumData of the bounced samples or None)}). A pass traces k camera paths per pixel: all of them
+    shade surfaces, and one of them, chosen uniformly at random per pixel and pass, also evaluates the medium, its
+    medium terms weighted by k. The pixel's estimate stays unbiased and the medium's cost per pass is that of one
+    path, while the surfaces' noise (path traced like volpath's) falls k times. k is settings["surface_paths"], or
+    with 0 (auto) chosen per pass from the variances measured on the passes before it (auto_surface_paths): the
+    oil and wine glasses' images are mostly surface noise, the milk's and the wax's mostly the medium's.
+    Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats; stats["surface_paths"]: k of each pass)."""
     W, H = int(bs.camera[12]), int(bs.camera[13])
     npix = W * H
-    k = int(settings.get("surface_paths", 1))
+    fixed = int(settings.get("surface_paths", 1))
     sett = np.array([settings["kmax"], settings["cut_size"], settings["clamp"],
                      float("single" in settings["components"]), float("double" in settings["components"]),
                      float("multiple" in settings["components"]), settings["kmax_scattered"],
                      settings["kmax_diffuse"]])
     caster = TriangleCaster(bs.vertices, bs.faces, threads)
     pool = ThreadPoolExecutor(threads) if threads > 1 else None
-    layers = {name: np.zeros((npix, 3)) for name in (*COMPONENTS, "surface")}
+    names = (*COMPONENTS, "surface")
+    layers = {name: np.zeros((npix, 3)) for name in names}
+    stats = _PassStatistics(npix)
+    ks = []
     t0 = time.perf_counter()
-    per_pass = npix * k
-    total = per_pass * spp
     chunk = 1 << 18
+    done = 0  # camera paths traced so far: path g is camera sample g // npix of pixel g % npix
     for p in range(spp):
+        k = fixed if fixed > 0 else (stats.next_paths(sum(layers.values()) / p) if p else None) or AUTO_FIRST_PATHS
+        ks.append(k)
         media_data = media_for_pass(p)
         # which of the pixel's k paths evaluates the medium in this pass (k = 1: every path, as ever)
         chosen = np.random.default_rng([seed, p, 0x5EC7]).integers(0, k, npix) if k > 1 else np.zeros(npix, np.int64)
+        per_pass = npix * k
+        acc = {name: np.zeros((npix, 3)) for name in names}
+        surface_sq = np.zeros((npix, 3))
         for c0 in range(0, per_pass, chunk):
             n = min(chunk, per_pass - c0)
-            _trace_batch(bs, caster, pool, threads, media_data, seed, p * per_pass + c0, n, npix, sett, settings,
-                         layers, chosen, k)
+            path_surface = np.zeros((n, 3))
+            _trace_batch(bs, caster, pool, threads, media_data, seed, done + c0, n, npix, sett, settings,
+                         acc, chosen, k, path_surface)
+            pix = (done + c0 + np.arange(n)) % npix
+            for ch in range(3):
+                surface_sq[:, ch] += np.bincount(pix, weights=path_surface[:, ch] ** 2, minlength=npix)
             if progress is not None:
-                progress(p * per_pass + c0 + n, total)
+                progress(p * npix + (c0 + n) * npix // per_pass, spp * npix)
+        done += per_pass
+        for name in names:
+            layers[name] += acc[name] / k
+        stats.add(k, acc["surface"], surface_sq, sum(acc[c] for c in COMPONENTS) / k)
     caster.close()
     if pool is not None:
         pool.shutdown()
-    out = {name: (v / (spp * k)).reshape(H, W, 3) for name, v in layers.items()}
+    out = {name: (v / spp).reshape(H, W, 3) for name, v in layers.items()}
     image = sum(out.values())
-    return image, out, {"time_s": time.perf_counter() - t0, "spp": spp}
+    return image, out, {"time_s": time.perf_counter() - t0, "spp": spp, "surface_paths": ks}
 
 
 def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, sett, settings, layers, chosen=None,
-                 kpaths=1):
+                 kpaths=1, path_surface=None):
     """n camera paths starting at global path index `done`, traced to the end, added into layers. Path g is
     camera sample g // npix of pixel g % npix; it evaluates the medium (weight kpaths) where its sample's index
-    within its pass, (g // npix) % kpaths, is chosen[pixel]."""
+    within its pass, (g // npix) % kpaths, is chosen[pixel] (a pass's k consecutive samples
+    cover every residue once, wherever it starts). path_surface (n, 3): each path's surface light, added to."""
     sett_b = sett.copy()
     # the bounced samples' single, double and multiple all make the bounced layer (tests may take a subset)
     sett_b[3:6] = settings.get("bounced_estimators", (1.0, 1.0, 1.0))
@@ -402,6 +471,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
     rng = np.zeros(n, np.uint64)
     generate_camera_rays(bs.camera, seed, done, n, pos, dirs, pixel, rng)
     gidx = np.arange(done, done + n, dtype=np.int64)
+    path = np.arange(n)  # each ray's camera path within the batch
     evm = np.ones(n, np.bool_) if chosen is None else ((gidx // npix) % kpaths == chosen[pixel])  # evaluates the medium
     beta = np.ones((n, 3))
     roulette_rng = np.random.default_rng([seed, done])
@@ -465,9 +535,11 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
             np.add.at(emit, vis // len(bs.lights), shc[vis])
         for ch in range(3):
             layers["surface"][:, ch] += np.bincount(pixel, weights=emit[:, ch], minlength=npix)
+            if path_surface is not None:
+                path_surface[:, ch] += np.bincount(path, weights=emit[:, ch], minlength=n)
         keep = cok & (cb.max(axis=1) > 1e-5)
         parent = np.repeat(np.arange(k), 2)[keep]
         pos, dirs, beta, medium, state = cp[keep], cd[keep], cb[keep], cm[keep], cstate[keep]
-        depth, pixel, evm = depth[parent] + 1, pixel[parent], evm[parent]
+        depth, pixel, evm, path = depth[parent] + 1, pixel[parent], evm[parent], path[parent]
         n_start = ng[parent]  # a child leaves the surface its parent met
         rng = rng[parent] ^ (np.uint64(0x9E37) * (keep.nonzero()[0] % 2 + 1).astype(np.uint64))

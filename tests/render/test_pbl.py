@@ -383,6 +383,81 @@ def test_surface_paths_keep_the_image_and_cut_the_surfaces_noise(tmp_path):
     assert var4 < 0.5 * var1, (var1, var4)
 
 
+def test_auto_surface_paths_minimises_the_error_at_equal_time():
+    """auto_surface_paths returns the k of least (S1 / k + M) (k + R), brute-forced over every allowed k; no
+    surface noise takes one path, no medium noise the most."""
+    from pbvol_cli.render.pbl import AUTO_MAX_PATHS, PASS_COST_RATIO, auto_surface_paths
+
+    R = PASS_COST_RATIO
+    ks = np.arange(1, AUTO_MAX_PATHS + 1)
+    for s1, m in ((0.06, 0.003), (0.05, 0.03), (1e-4, 0.005), (0.1, 1e-5), (0.02, 0.02)):
+        cost = (s1 / ks + m) * (ks + R)
+        k = auto_surface_paths(s1, m)
+        assert cost[k - 1] <= 1.01 * cost.min(), (s1, m, k, ks[cost.argmin()])
+    assert auto_surface_paths(0.0, 0.01) == 1
+    assert auto_surface_paths(0.01, 0.0) == AUTO_MAX_PATHS
+    assert auto_surface_paths(0.06, 0.003) > 8 > auto_surface_paths(0.05, 0.03)
+
+
+def test_pass_statistics_measure_the_surface_and_medium_variances():
+    """_PassStatistics: the within-pass variance of one surface path and the pass-to-pass variance of the medium
+    estimate, relative as compare's relMSE, from synthetic passes of known variances (Gaussian, 5000 pixels); a
+    pass of one path adds nothing to the surface's."""
+    from pbvol_cli.render.pbl import PASS_COST_RATIO, _PassStatistics
+
+    rng = np.random.default_rng(5)
+    npix, sd_s, sd_m, level = 5000, 0.3, 0.05, 1.0
+    st = _PassStatistics(npix)
+    assert st.next_paths(np.full((npix, 3), level)) is None
+    for k in (8, 8, 1, 3):
+        paths = level + sd_s * rng.normal(size=(k, npix, 3))
+        st.add(k, paths.sum(0), (paths ** 2).sum(0), 0.2 + sd_m * rng.normal(size=(npix, 3)))
+    den = level ** 2 + 1e-2
+    s1 = float((st.surface_var / st.surface_passes / den).mean())
+    assert s1 == pytest.approx(sd_s ** 2 / den, rel=0.03)
+    k = st.next_paths(np.full((npix, 3), level))
+    assert abs(k - math.sqrt(PASS_COST_RATIO) * sd_s / sd_m) <= 1, k  # the true variances' optimum: 26.8
+
+
+def test_auto_surface_paths_follow_the_noise_and_keep_the_image(tmp_path):
+    """surface_paths = 0 (auto): 8 paths for the first two passes, then more where the surfaces' noise rules (a
+    floor under a sky beside a thin medium) and one where there is no surface light at all (the medium under a
+    directional light against black). The image's mean stays that of a fixed k (4 standard errors of the seeds'
+    spread), and the same seed gives the same image."""
+    floor = _scene(surface_samples=800, segments_per_beam=4, bounce_samples=64)
+    floor["camera"] = camera((12, 12), position=(0, 1.5, 3.5), fov=50)
+    floor["lights"] = [{"type": "environment", "radiance": 0.5}]
+    floor["shapes"][0]["medium"] = {"sigma_a": 0.05, "sigma_s": 0.05, "g": 0.0}
+    floor["shapes"].append({"type": "quad", "center": [0, -1.0, 0], "size": [8.0, 8.0], "interface": "diffuse",
+                            "albedo": 0.6})
+    means = {}
+    for k in (0, 8):
+        floor["render"]["pbl"]["surface_paths"] = k
+        path = write_scene(tmp_path, floor)
+        runs = []
+        for seed in range(4):
+            render_scene(path, tmp_path / "o.exr", RenderOptions(method="pbl", spp=4, seed=seed, cache_dir=tmp_path,
+                                                                 quiet=True))
+            img, meta = read_exr(tmp_path / "o.exr")
+            runs.append(img.astype(float).mean())
+            if k == 0:
+                ks = [int(v) for v in meta["surface_paths_per_pass"].split(",")]
+                assert ks[:2] == [8, 8] and min(ks[2:]) > 8, ks
+                assert meta["surface_paths"] == pytest.approx(np.mean(ks)) and meta["surface_paths_setting"] == 0
+        means[k] = np.array(runs)
+    se = math.hypot(means[0].std(ddof=1), means[8].std(ddof=1)) / 2
+    print("auto vs 8 paths:", means[0].mean(), means[8].mean(), se)
+    assert abs(means[0].mean() - means[8].mean()) < 4 * se + 1e-12
+    render_scene(path, tmp_path / "p.exr", RenderOptions(method="pbl", spp=4, seed=3, cache_dir=tmp_path, quiet=True))
+    assert np.array_equal(read_exr(tmp_path / "p.exr")[0], read_exr(tmp_path / "o.exr")[0])
+
+    dark = _scene(surface_samples=500, segments_per_beam=2, bounce_samples=64)
+    dark["camera"]["resolution"] = [8, 8]
+    render_scene(write_scene(tmp_path, dark), tmp_path / "d.exr", RenderOptions(method="pbl", spp=3,
+                                                                               cache_dir=tmp_path, quiet=True))
+    assert read_exr(tmp_path / "d.exr")[1]["surface_paths_per_pass"] == "8,8,1"
+
+
 def test_multiple_term_of_a_source_with_its_image_is_never_negative():
     """The multiple term of one source is the table's value less its mirror image's (method of images): where the
     image's mirrored lobe sends more toward P than the source's own, or P lies beyond the source's boundary plane
