@@ -426,7 +426,9 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, settings: di
     chunk = 1 << 18
     done = 0  # camera paths traced so far: path g is camera sample g // npix of pixel g % npix
     for p in range(spp):
-        k = fixed if fixed > 0 else (stats.next_paths(sum(layers.values()) / p) if p else None) or AUTO_FIRST_PATHS
+        k = fixed
+        if k == 0:  # auto: from the passes so far, once two are in (the image so far weighs them as relMSE does)
+            k = (p and stats.next_paths(sum(layers.values()) / p)) or AUTO_FIRST_PATHS
         ks.append(k)
         media_data = media_for_pass(p)
         # which of the pixel's k paths evaluates the medium in this pass (k = 1: every path, as ever)
