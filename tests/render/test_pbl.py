@@ -350,24 +350,36 @@ def test_near_field_radius_holds_about_the_target_count_of_segments():
         NEAR_FIELD_RADII * 0.01)
 
 
+def _floor_scene():
+    """_scene's medium sphere seen from above a diffuse floor (light samples kept few: fast)."""
+    scene = _scene(surface_samples=800, segments_per_beam=4, bounce_samples=64)
+    scene["camera"] = camera((12, 12), position=(0, 1.5, 3.5), fov=50)
+    scene["shapes"].append({"type": "quad", "center": [0, -1.0, 0], "size": [8.0, 8.0], "interface": "diffuse",
+                            "albedo": 0.6})
+    return scene
+
+
+def _seed_renders(tmp_path, scene, spp, seeds=range(4)):
+    """Renders scene with pbl once per seed into tmp_path / "o.exr", yielding that path after each."""
+    path = write_scene(tmp_path, scene)
+    for seed in seeds:
+        render_scene(path, tmp_path / "o.exr", RenderOptions(method="pbl", spp=spp, seed=seed, cache_dir=tmp_path,
+                                                             quiet=True))
+        yield tmp_path / "o.exr"
+
+
 def test_surface_paths_keep_the_image_and_cut_the_surfaces_noise(tmp_path):
     """surface_paths = k traces k camera paths per pixel and pass, one of them (chosen at random) evaluating the
     medium with weight k: every layer's mean stays that of k = 1 (within 4 standard errors of the seed-to-seed
     spread), and the surface layer's per-pixel variance falls about k times (bound: half)."""
-    scene = _scene(surface_samples=800, segments_per_beam=4, bounce_samples=64)
-    scene["camera"] = camera((12, 12), position=(0, 1.5, 3.5), fov=50)
+    scene = _floor_scene()
     scene["lights"].append({"type": "environment", "radiance": 0.3})
-    scene["shapes"].append({"type": "quad", "center": [0, -1.0, 0], "size": [8.0, 8.0], "interface": "diffuse",
-                            "albedo": 0.6})
     stats = {}
     for k in (1, 4):
         scene["render"]["pbl"]["surface_paths"] = k
-        path = write_scene(tmp_path, scene)
         runs = []
-        for seed in range(4):
-            render_scene(path, tmp_path / "o.exr", RenderOptions(method="pbl", spp=2, seed=seed, cache_dir=tmp_path,
-                                                                 quiet=True))
-            L = read_layers(tmp_path / "o.exr")
+        for out in _seed_renders(tmp_path, scene, spp=2):
+            L = read_layers(out)
             medium = sum(L[c].astype(float) for c in ("single", "double", "multiple", "bounced"))
             runs.append((L["surface"].astype(float), medium))
         stats[k] = [np.array([r[j] for r in runs]) for j in range(2)]  # (seed, H, W, 3) per part
@@ -424,21 +436,15 @@ def test_auto_surface_paths_follow_the_noise_and_keep_the_image(tmp_path):
     floor under a sky beside a thin medium) and one where there is no surface light at all (the medium under a
     directional light against black). The image's mean stays that of a fixed k (4 standard errors of the seeds'
     spread), and the same seed gives the same image."""
-    floor = _scene(surface_samples=800, segments_per_beam=4, bounce_samples=64)
-    floor["camera"] = camera((12, 12), position=(0, 1.5, 3.5), fov=50)
+    floor = _floor_scene()
     floor["lights"] = [{"type": "environment", "radiance": 0.5}]
     floor["shapes"][0]["medium"] = {"sigma_a": 0.05, "sigma_s": 0.05, "g": 0.0}
-    floor["shapes"].append({"type": "quad", "center": [0, -1.0, 0], "size": [8.0, 8.0], "interface": "diffuse",
-                            "albedo": 0.6})
     means = {}
-    for k in (0, 8):
+    for k in (8, 0):  # auto last: its seed-3 render is checked for reproducibility below
         floor["render"]["pbl"]["surface_paths"] = k
-        path = write_scene(tmp_path, floor)
         runs = []
-        for seed in range(4):
-            render_scene(path, tmp_path / "o.exr", RenderOptions(method="pbl", spp=4, seed=seed, cache_dir=tmp_path,
-                                                                 quiet=True))
-            img, meta = read_exr(tmp_path / "o.exr")
+        for out in _seed_renders(tmp_path, floor, spp=4):
+            img, meta = read_exr(out)
             runs.append(img.astype(float).mean())
             if k == 0:
                 ks = [int(v) for v in meta["surface_paths_per_pass"].split(",")]
@@ -448,7 +454,8 @@ def test_auto_surface_paths_follow_the_noise_and_keep_the_image(tmp_path):
     se = math.hypot(means[0].std(ddof=1), means[8].std(ddof=1)) / 2
     print("auto vs 8 paths:", means[0].mean(), means[8].mean(), se)
     assert abs(means[0].mean() - means[8].mean()) < 4 * se + 1e-12
-    render_scene(path, tmp_path / "p.exr", RenderOptions(method="pbl", spp=4, seed=3, cache_dir=tmp_path, quiet=True))
+    render_scene(tmp_path / "scene.toml", tmp_path / "p.exr", RenderOptions(method="pbl", spp=4, seed=3,
+                                                                           cache_dir=tmp_path, quiet=True))
     assert np.array_equal(read_exr(tmp_path / "p.exr")[0], read_exr(tmp_path / "o.exr")[0])
 
     dark = _scene(surface_samples=500, segments_per_beam=2, bounce_samples=64)
