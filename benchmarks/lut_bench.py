@@ -28,6 +28,7 @@ def main():
     from pbvol_cli import config as C
     from pbvol_cli.multiple_scattering import lobes
     from pbvol_cli.multiple_scattering.table import build_table, energy_cells, relative_error, resolve_particles
+    from pbvol_cli.pipeline.lut import table_settings
     from pbvol_cli.physics.phase import KINDS
     from pbvol_cli.pipeline.lut import channel_tables
     from pbvol_cli.pipeline.precompute import precompute
@@ -52,7 +53,7 @@ def main():
         sa, ss = mat.coefficients(mat.length_unit)
         alpha, chans = channel_tables(sa, ss)[0]
         kind = KINDS[mat.phase]
-        base = resolve_particles(alpha, mat.g, kind, C.LutSettings().table_settings())
+        base = resolve_particles(alpha, mat.g, kind, table_settings(C.LutSettings()))
         t0 = time.perf_counter()
         tab, S = build_table(alpha, mat.g, kind, base)
         t1 = time.perf_counter()

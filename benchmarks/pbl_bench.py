@@ -53,7 +53,7 @@ from pathlib import Path
 from pbvol_cli import config as C
 from pbvol_cli.geometry.scene_build import build_scene
 from pbvol_cli.pipeline.precompute import precompute
-from pbvol_cli.pipeline.render import peak_memory_mb, set_threads
+from pbvol_cli.pipeline.progress import peak_memory_mb, set_threads
 from pbvol_cli.pipeline.samples import get_light_samples
 scene_path, threads, cache = Path(sys.argv[1]), int(sys.argv[2]), Path(sys.argv[3])
 scene = C.load_scene(scene_path)

@@ -231,14 +231,6 @@ class LutSettings(Strict):
     sh_order: int = Field(12, ge=2, le=24)
     merge_tol: float = Field(0.05, ge=0, description="quadtree merge tolerance on lobe shapes")
 
-    def table_settings(self, particles: int | None = None, seed: int | None = None):
-        from pbvol_cli.multiple_scattering.layout import Layout
-        from pbvol_cli.multiple_scattering.table import TableSettings
-
-        return TableSettings(particles=particles or self.particles, collision_budget=self.collision_budget,
-                             seed=self.seed if seed is None else seed,
-                             layout=Layout(extent=self.extent, kill_radius=2.0 * self.extent),
-                             sh_order=self.sh_order, merge_tol=self.merge_tol)
 
 
 class PblSettings(Strict):
@@ -590,11 +582,8 @@ def load_scene(path: Path) -> Scene:
     except ValidationError as e:
         raise ConfigError(path, *_describe(e)) from None
     # Resolve every medium reference now, so that a bad name fails here with its field.
+    scene_media(scene, path)
     for i, shape in enumerate(scene.shapes):
-        for fld in ("medium", "exterior_medium", "liquid"):
-            ref = getattr(shape, fld, None)
-            if ref is not None:
-                resolve_medium(ref, scene, path, f"shapes[{i}].{fld}")
         if isinstance(shape, MeshShape):
             mesh_path = (path.parent / shape.file)
             if not mesh_path.exists():
@@ -648,7 +637,24 @@ def resolve_medium(ref: MediumRef, scene: Scene, scene_path: Path, field: str) -
     return mat, label
 
 
-def dump_toml(model: BaseModel) -> str:
-    import tomli_w
+MEDIUM_FIELDS = ("medium", "exterior_medium", "liquid")  # the shape fields that name a medium
 
-    return tomli_w.dumps(model.model_dump(mode="json", exclude_none=True))
+
+def medium_key(material: Material) -> str:
+    """Two references to materials with the same key are one medium."""
+    return material.model_dump_json()
+
+
+def scene_media(scene: Scene, scene_path: Path) -> list[tuple[str, Material]]:
+    """Every distinct medium of a scene as (label, material), in the order the shapes first name them."""
+    seen, out = set(), []
+    for i, shape in enumerate(scene.shapes):
+        for fld in MEDIUM_FIELDS:
+            ref = getattr(shape, fld, None)
+            if ref is None:
+                continue
+            mat, label = resolve_medium(ref, scene, scene_path, f"shapes[{i}].{fld}")
+            if medium_key(mat) not in seen:
+                seen.add(medium_key(mat))
+                out.append((label, mat))
+    return out

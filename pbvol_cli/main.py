@@ -83,7 +83,7 @@ def precompute_lut(
     """Precompute the multiple-scattering tables (one per distinct albedo of each medium) into the cache."""
     from pbvol_cli.pipeline.cache import cache_dir as resolve_cache
     from pbvol_cli.pipeline.precompute import precompute
-    from pbvol_cli.pipeline.render import set_threads
+    from pbvol_cli.pipeline.progress import set_threads
 
     try:
         set_threads(threads)
@@ -104,7 +104,7 @@ def place_samples(
     from pbvol_cli import config as C
     from pbvol_cli.geometry.scene_build import build_scene
     from pbvol_cli.pipeline.cache import cache_dir as resolve_cache
-    from pbvol_cli.pipeline.render import peak_memory_mb, progress_bar, set_threads
+    from pbvol_cli.pipeline.progress import peak_memory_mb, progress_bar, set_threads
     from pbvol_cli.pipeline.samples import get_light_samples
 
     try:

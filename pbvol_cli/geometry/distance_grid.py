@@ -7,8 +7,9 @@ its Chebyshev distance k (in cells) to the nearest marked cell. Any point of tha
 (k - 1) * h from every triangle. The grid's border layer is marked too, so triangles outside the grid are
 accounted for.
 
-Layout of ``params``: [ox, oy, oz, h, nx, ny, nz, state]. State 1: a grid; 0: no triangles at all, the
-bound is +inf; -1: triangles but no grid (no medium region to cover), the bound is 0.
+Layout of ``params`` (columns GRID_*): the grid's origin (3), its cell size h, its cell counts (3) and a state:
+GRID_READY, a grid; GRID_NO_TRIANGLES, the bound is +inf; GRID_NONE, triangles but no grid (no medium region to
+cover), the bound is 0.
 """
 
 import math
@@ -17,6 +18,8 @@ import numpy as np
 from numba import njit
 
 MAX_CELLS = 128
+GRID_ORIGIN, GRID_CELL, GRID_COUNTS, GRID_STATE = 0, 3, 4, 7
+GRID_READY, GRID_NO_TRIANGLES, GRID_NONE = 1.0, 0.0, -1.0
 
 
 @njit(cache=True)
@@ -81,9 +84,9 @@ def _chebyshev_transform(dist):
 def build_distance_grid(V: np.ndarray, F: np.ndarray, lo: np.ndarray, hi: np.ndarray, eps: float):
     """Grid over the box [lo, hi] (where media are) for the triangles (V, F). Returns (params, cells)."""
     if F.shape[0] == 0:
-        return np.array([0, 0, 0, 1, 0, 0, 0, 0.0]), np.zeros((1, 1, 1), np.int16)
+        return np.array([0, 0, 0, 1, 0, 0, 0, GRID_NO_TRIANGLES]), np.zeros((1, 1, 1), np.int16)
     if np.any(hi <= lo):
-        return np.array([0, 0, 0, 1, 0, 0, 0, -1.0]), np.zeros((1, 1, 1), np.int16)
+        return np.array([0, 0, 0, 1, 0, 0, 0, GRID_NONE]), np.zeros((1, 1, 1), np.int16)
     ext = hi - lo
     h = float(ext.max()) / (MAX_CELLS - 4)
     n = np.maximum(np.ceil(ext / h).astype(int) + 4, 3)
@@ -92,21 +95,21 @@ def build_distance_grid(V: np.ndarray, F: np.ndarray, lo: np.ndarray, hi: np.nda
     _mark(V.astype(np.float64), F.astype(np.int64), origin[0], origin[1], origin[2], h,
           n[0], n[1], n[2], 4 * eps, cells)
     _chebyshev_transform(cells)
-    params = np.array([origin[0], origin[1], origin[2], h, n[0], n[1], n[2], 1.0])
+    params = np.array([origin[0], origin[1], origin[2], h, n[0], n[1], n[2], GRID_READY])
     return params, cells
 
 
 @njit(inline="always", cache=True)
 def mesh_distance_bound(params, cells, x, y, z):
     """Lower bound on the distance from (x, y, z) to every triangle (0 outside the grid)."""
-    if params[7] == 0.0:
+    if params[GRID_STATE] == GRID_NO_TRIANGLES:
         return np.inf
-    if params[7] < 0.0:
+    if params[GRID_STATE] == GRID_NONE:
         return 0.0
-    h = params[3]
-    i = int(math.floor((x - params[0]) / h))
-    j = int(math.floor((y - params[1]) / h))
-    k = int(math.floor((z - params[2]) / h))
+    h = params[GRID_CELL]
+    i = int(math.floor((x - params[GRID_ORIGIN]) / h))
+    j = int(math.floor((y - params[GRID_ORIGIN + 1]) / h))
+    k = int(math.floor((z - params[GRID_ORIGIN + 2]) / h))
     if i < 0 or j < 0 or k < 0 or i >= cells.shape[0] or j >= cells.shape[1] or k >= cells.shape[2]:
         return 0.0
     return max(0.0, (cells[i, j, k] - 1) * h)

@@ -1,7 +1,7 @@
 """Batched closest-hit queries against the scene's triangles through Embree (embreex).
 
 Analytic spheres and area lights are intersected inside the numba kernels (see
-``pbvol_cli.render.intersect``); this module only answers for triangles. Embree takes float32 rays and has
+``pbvol_cli.geometry.intersect``); this module only answers for triangles. Embree takes float32 rays and has
 no per-ray entry point from numba, so callers gather the rays that need a cast, call ``closest_hit`` once
 per wavefront step, and hand the arrays back to their kernels.
 """

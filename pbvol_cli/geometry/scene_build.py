@@ -1,14 +1,15 @@
 """Config -> a built scene: flat numpy tables that every method's kernels read.
 
-Surfaces. Every triangle and every analytic sphere points to a surface row (SURF_COLS columns):
-  0 type (DIFFUSE, DIELECTRIC, MIRROR, NULL)  1 interior medium  2 exterior medium
-  3 interior eta  4 exterior eta  5-7 albedo RGB (diffuse albedo or mirror reflectance)
-The geometric normal points to the exterior. Medium -1 is vacuum (air).
-A dielectric whose two indices are equal transmits without refraction and is turned into NULL here.
+Surfaces. Every triangle and every analytic sphere points to a surface row, columns SURF_*: its type (DIFFUSE,
+DIELECTRIC, MIRROR, NULL), interior and exterior medium, interior and exterior eta, RGB albedo (diffuse albedo or
+mirror reflectance). The geometric normal points to the exterior. Medium -1 is vacuum (air). A dielectric whose
+two indices are equal transmits without refraction and is turned into NULL here.
 
-Media (MED_COLS columns): 0-2 sigma_a RGB, 3-5 sigma_s RGB (1/scene unit), 6 phase kind, 7 g, 8 sealed.
-"Sealed" media are enclosed only by refracting or opaque surfaces: no shadow ray from inside can reach a
-light, so next-event estimation is skipped there (it would always be blocked).
+Media, columns MED_*: sigma_a and sigma_s (RGB, 1/scene unit), phase function kind (physics.phase.KINDS), g, and
+"sealed": enclosed only by refracting or opaque surfaces, so that no shadow ray from inside can reach a light and
+next-event estimation is skipped there (it would always be blocked).
+
+Spheres (analytic sphere shapes), columns SPH_*: centre, radius, surface row. Camera: see camera_params.
 """
 
 from __future__ import annotations
@@ -22,13 +23,20 @@ import numpy as np
 from pbvol_cli import config as C
 from pbvol_cli.errors import ConfigError
 from pbvol_cli.geometry.distance_grid import build_distance_grid
-from pbvol_cli.physics.lights import ENVIRONMENT, SPHERE, QUAD, light_rows
+from pbvol_cli.physics.lights import (ENVIRONMENT, LIGHT_E1, LIGHT_E2, LIGHT_P0, LIGHT_RADIUS, LIGHT_TYPE, QUAD, SPHERE,
+                                     light_rows)
 from pbvol_cli.physics.phase import KINDS
 
-DIFFUSE, DIELECTRIC, MIRROR, NULL = 0, 1, 2, 3
+DIFFUSE, DIELECTRIC, MIRROR, NULL = 0, 1, 2, 3  # SURF_TYPE values
 INTERFACES = {"diffuse": DIFFUSE, "dielectric": DIELECTRIC, "mirror": MIRROR, "null": NULL}
+SURF_TYPE, SURF_MEDIUM_IN, SURF_MEDIUM_OUT, SURF_ETA_IN, SURF_ETA_OUT, SURF_ALBEDO = 0, 1, 2, 3, 4, 5  # albedo: 3
 SURF_COLS = 8
+MED_SIGMA_A, MED_SIGMA_S, MED_PHASE, MED_G, MED_SEALED = 0, 3, 6, 7, 8  # sigma_a, sigma_s: 3 (RGB) each
 MED_COLS = 9
+SPH_CENTER, SPH_RADIUS, SPH_SURFACE = 0, 3, 4
+SPH_COLS = 5
+# camera_params: position, forward, right (scaled), up (scaled): 3 each; then the image size
+CAM_POS, CAM_FORWARD, CAM_RIGHT, CAM_UP, CAM_WIDTH, CAM_HEIGHT = 0, 3, 6, 9, 12, 13
 
 
 @dataclass
@@ -47,11 +55,11 @@ class BuiltScene:
     faces: np.ndarray  # (nt, 3) int32
     tri_surface: np.ndarray  # (nt,) int32
     tri_normals: np.ndarray  # (nt, 3, 3) float32 shading normal at each corner
-    spheres: np.ndarray  # (ns, 5) float64: centre, radius, surface
+    spheres: np.ndarray  # (ns, SPH_COLS) float64: centre, radius, surface
     surfaces: np.ndarray  # (nsurf, SURF_COLS) float64
     media: np.ndarray  # (nm, MED_COLS) float64
     lights: np.ndarray  # (nl, LIGHT_COLS) float64
-    camera: np.ndarray  # (14,) see camera_params
+    camera: np.ndarray  # (14,) see camera_params (CAM_*)
     grid_params: np.ndarray
     grid_cells: np.ndarray
     eps: float  # ray offset, scene units
@@ -64,11 +72,30 @@ class BuiltScene:
 
     @property
     def has_environment(self) -> bool:
-        return bool(np.any(self.lights[:, 0] == ENVIRONMENT))
+        return bool(np.any(self.lights[:, LIGHT_TYPE] == ENVIRONMENT))
+
+    @property
+    def resolution(self) -> tuple[int, int]:
+        """(width, height) in pixels."""
+        return int(self.camera[CAM_WIDTH]), int(self.camera[CAM_HEIGHT])
+
+    def medium_sigmas(self, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """(sigma_a, sigma_s) of medium m, RGB, 1/scene unit."""
+        return (self.media[m, MED_SIGMA_A:MED_SIGMA_A + 3], self.media[m, MED_SIGMA_S:MED_SIGMA_S + 3])
+
+    def surfaces_bounding(self, m: int) -> np.ndarray:
+        """Boolean mask over surface rows: those with medium m on either side."""
+        return (self.surfaces[:, SURF_MEDIUM_IN] == m) | (self.surfaces[:, SURF_MEDIUM_OUT] == m)
+
+
+def sphere_bounds(row: np.ndarray) -> np.ndarray:
+    """(2, 3) bounding box of a spheres-table row."""
+    c, r = row[SPH_CENTER:SPH_CENTER + 3], row[SPH_RADIUS]
+    return np.array([c - r, c + r])
 
 
 def camera_params(cam: C.Camera, resolution: tuple[int, int] | None = None) -> np.ndarray:
-    """[position, forward, right * tan(fov/2) * aspect, up * tan(fov/2), width, height]."""
+    """[position, forward, right * tan(fov/2) * aspect, up * tan(fov/2), width, height] (columns CAM_*)."""
     w, h = resolution or cam.resolution
     pos = np.asarray(cam.position, float)
     fwd = np.asarray(cam.look_at, float) - pos
@@ -81,23 +108,18 @@ def camera_params(cam: C.Camera, resolution: tuple[int, int] | None = None) -> n
 
 
 class _Media:
-    """Deduplicating registry of media."""
+    """The scene's distinct media (config.scene_media), indexed in the order the shapes first name them."""
 
     def __init__(self, scene: C.Scene, path: Path):
         self.scene, self.path = scene, path
-        self.info: list[MediumInfo] = []
-        self._keys: dict[str, int] = {}
+        self.info = [MediumInfo(label, mat, *mat.coefficients(scene.unit)) for label, mat in C.scene_media(scene, path)]
+        self._index = {C.medium_key(mi.material): k for k, mi in enumerate(self.info)}
 
     def get(self, ref, field_name: str) -> int:
         if ref is None:
             return -1
-        mat, label = C.resolve_medium(ref, self.scene, self.path, field_name)
-        key = mat.model_dump_json()
-        if key not in self._keys:
-            sa, ss = mat.coefficients(self.scene.unit)
-            self._keys[key] = len(self.info)
-            self.info.append(MediumInfo(label, mat, sa, ss))
-        return self._keys[key]
+        mat, _ = C.resolve_medium(ref, self.scene, self.path, field_name)
+        return self._index[C.medium_key(mat)]
 
     def eta(self, idx: int) -> float | None:
         return None if idx < 0 else self.info[idx].material.eta
@@ -183,19 +205,20 @@ def build_scene(scene: C.Scene, path: Path, resolution: tuple[int, int] | None =
 
     V = np.concatenate(verts).astype(np.float32) if verts else np.zeros((0, 3), np.float32)
     F = np.concatenate(faces).astype(np.int32) if faces else np.zeros((0, 3), np.int32)
-    S = np.asarray(spheres, float).reshape(-1, 5)
+    S = np.asarray(spheres, float).reshape(-1, SPH_COLS)
     surf = np.asarray(surfaces, float).reshape(-1, SURF_COLS)
     lights = light_rows(scene.lights)
 
     # Scene bounds (geometry and area lights) -> ray offset.
     pts = [V.astype(float)] if len(V) else []
     for s in S:
-        pts.append(np.array([s[:3] - s[3], s[:3] + s[3]]))
+        pts.append(sphere_bounds(s))
     for L in lights:
-        if L[0] == SPHERE:
-            pts.append(np.array([L[4:7] - L[13], L[4:7] + L[13]]))
-        elif L[0] == QUAD:
-            pts.append(np.array([L[4:7], L[4:7] + L[7:10] + L[10:13]]))
+        p0, e1, e2 = (L[c:c + 3] for c in (LIGHT_P0, LIGHT_E1, LIGHT_E2))
+        if L[LIGHT_TYPE] == SPHERE:
+            pts.append(np.array([p0 - L[LIGHT_RADIUS], p0 + L[LIGHT_RADIUS]]))
+        elif L[LIGHT_TYPE] == QUAD:
+            pts.append(np.array([p0, p0 + e1 + e2]))
     allp = np.concatenate(pts) if pts else np.zeros((1, 3))
     bbox = np.array([allp.min(0), allp.max(0)])
     extent = float(np.linalg.norm(bbox[1] - bbox[0])) or 1.0
@@ -204,21 +227,23 @@ def build_scene(scene: C.Scene, path: Path, resolution: tuple[int, int] | None =
     # Media table, with the sealed flag.
     med = np.zeros((len(media.info), MED_COLS))
     for k, mi in enumerate(media.info):
-        med[k, 0:3], med[k, 3:6] = mi.sigma_a, mi.sigma_s
-        med[k, 6], med[k, 7] = KINDS[mi.material.phase], mi.material.g
-        sides = (surf[:, 1] == k) | (surf[:, 2] == k)
-        med[k, 8] = float(not np.any(sides & (surf[:, 0] == NULL)))
+        med[k, MED_SIGMA_A:MED_SIGMA_A + 3], med[k, MED_SIGMA_S:MED_SIGMA_S + 3] = mi.sigma_a, mi.sigma_s
+        med[k, MED_PHASE], med[k, MED_G] = KINDS[mi.material.phase], mi.material.g
+        sides = (surf[:, SURF_MEDIUM_IN] == k) | (surf[:, SURF_MEDIUM_OUT] == k)
+        med[k, MED_SEALED] = float(not np.any(sides & (surf[:, SURF_TYPE] == NULL)))
 
     # Distance grid over where the media are (triangles bounding media, spheres holding media).
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    holds_medium = (surf[:, SURF_MEDIUM_IN] >= 0) | (surf[:, SURF_MEDIUM_OUT] >= 0)
     if len(F):
-        tri_media = (surf[tri_surf_all := np.concatenate(tri_surf), 1] >= 0) | (surf[tri_surf_all, 2] >= 0)
+        tri_media = holds_medium[np.concatenate(tri_surf)]
         if tri_media.any():
             tv = V[F[tri_media]].reshape(-1, 3)
             lo, hi = np.minimum(lo, tv.min(0)), np.maximum(hi, tv.max(0))
     for s in S:
-        if surf[int(s[4]), 1] >= 0 or surf[int(s[4]), 2] >= 0:
-            lo, hi = np.minimum(lo, s[:3] - s[3]), np.maximum(hi, s[:3] + s[3])
+        if holds_medium[int(s[SPH_SURFACE])]:
+            b = sphere_bounds(s)
+            lo, hi = np.minimum(lo, b[0]), np.maximum(hi, b[1])
     gp, gc = build_distance_grid(V, F, lo, hi, eps)
 
     return BuiltScene(

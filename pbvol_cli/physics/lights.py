@@ -1,11 +1,11 @@
 """Light sources as rows of a flat float64 table, and their sampling / pdf / intersection kernels.
 
-Row layout (LIGHT_COLS columns):
-  0 type  1-3 emitted RGB  4-6 p0  7-9 e1  10-12 e2  13 radius  14 two_sided  15 area
-  point:       p0 = position, RGB = intensity (W/sr)
-  directional: e1 = unit direction of travel, RGB = irradiance (W/m^2) on a surface facing it
-  sphere:      p0 = centre, radius, RGB = radiance (emitted outward)
-  quad:        p0 = corner, e1, e2 edges, RGB = radiance on the side of e1 x e2 (both if two_sided)
+Row layout (LIGHT_COLS columns, named below): LIGHT_TYPE, LIGHT_RGB (3), LIGHT_P0 (3), LIGHT_E1 (3), LIGHT_E2 (3),
+LIGHT_RADIUS, LIGHT_TWO_SIDED, LIGHT_AREA.
+  point:       P0 = position, RGB = intensity (W/sr)
+  directional: E1 = unit direction of travel, RGB = irradiance (W/m^2) on a surface facing it
+  sphere:      P0 = centre, RADIUS, RGB = radiance (emitted outward), AREA
+  quad:        P0 = corner, E1, E2 edges, RGB = radiance on the side of E1 x E2 (both if TWO_SIDED), AREA
   environment: RGB = constant radiance arriving from every direction
 Directions passed around are unit propagation directions; pdfs are per unit solid angle.
 """
@@ -17,7 +17,8 @@ from numba import njit
 
 from pbvol_cli.physics.sampling import around, uniform_sphere
 
-POINT, DIRECTIONAL, SPHERE, QUAD, ENVIRONMENT = 0, 1, 2, 3, 4
+POINT, DIRECTIONAL, SPHERE, QUAD, ENVIRONMENT = 0, 1, 2, 3, 4  # LIGHT_TYPE values
+LIGHT_TYPE, LIGHT_RGB, LIGHT_P0, LIGHT_E1, LIGHT_E2, LIGHT_RADIUS, LIGHT_TWO_SIDED, LIGHT_AREA = 0, 1, 4, 7, 10, 13, 14, 15
 LIGHT_COLS = 16
 INF = np.inf
 
@@ -27,24 +28,25 @@ def light_rows(lights) -> np.ndarray:
     rows = np.zeros((len(lights), LIGHT_COLS))
     for i, L in enumerate(lights):
         r = rows[i]
+        rgb, p0, e1, e2 = (slice(c, c + 3) for c in (LIGHT_RGB, LIGHT_P0, LIGHT_E1, LIGHT_E2))
         if L.type == "point":
-            r[0], r[1:4], r[4:7] = POINT, L.intensity, L.position
+            r[LIGHT_TYPE], r[rgb], r[p0] = POINT, L.intensity, L.position
         elif L.type == "directional":
             d = np.asarray(L.direction, float)
-            r[0], r[1:4], r[7:10] = DIRECTIONAL, L.irradiance, d / np.linalg.norm(d)
+            r[LIGHT_TYPE], r[rgb], r[e1] = DIRECTIONAL, L.irradiance, d / np.linalg.norm(d)
         elif L.type == "sphere":
-            r[0], r[1:4], r[4:7], r[13] = SPHERE, L.emitted_radiance(), L.center, L.radius
-            r[15] = 4 * math.pi * L.radius**2
+            r[LIGHT_TYPE], r[rgb], r[p0], r[LIGHT_RADIUS] = SPHERE, L.emitted_radiance(), L.center, L.radius
+            r[LIGHT_AREA] = 4 * math.pi * L.radius**2
         elif L.type == "quad":
-            r[0], r[1:4], r[4:7], r[7:10], r[10:13] = QUAD, L.emitted_radiance(), L.corner, L.edge1, L.edge2
-            r[14], r[15] = float(L.two_sided), L.area()
+            r[LIGHT_TYPE], r[rgb], r[p0], r[e1], r[e2] = QUAD, L.emitted_radiance(), L.corner, L.edge1, L.edge2
+            r[LIGHT_TWO_SIDED], r[LIGHT_AREA] = float(L.two_sided), L.area()
         else:
-            r[0], r[1:4] = ENVIRONMENT, L.radiance
+            r[LIGHT_TYPE], r[rgb] = ENVIRONMENT, L.radiance
     return rows
 
 
 @njit(inline="always", cache=True)
-def _sphere_hit(ox, oy, oz, dx, dy, dz, cx, cy, cz, rad, tmin):
+def sphere_hit(ox, oy, oz, dx, dy, dz, cx, cy, cz, rad, tmin):
     """Nearest t > tmin where the ray meets the sphere, or inf. Returns (t, entering)."""
     lx, ly, lz = ox - cx, oy - cy, oz - cz
     b = lx * dx + ly * dy + lz * dz
@@ -73,10 +75,10 @@ def intersect_lights(lights, ox, oy, oz, dx, dy, dz, tmax, skip=-1):
     for li in range(lights.shape[0]):
         if li == skip:
             continue
-        kind = lights[li, 0]
+        kind = lights[li, LIGHT_TYPE]
         if kind == SPHERE:
-            t, _ = _sphere_hit(ox, oy, oz, dx, dy, dz, lights[li, 4], lights[li, 5], lights[li, 6],
-                               lights[li, 13], 0.0)
+            t, _ = sphere_hit(ox, oy, oz, dx, dy, dz, lights[li, LIGHT_P0], lights[li, LIGHT_P0 + 1], lights[li, LIGHT_P0 + 2],
+                               lights[li, LIGHT_RADIUS], 0.0)
             if t < best:
                 best, idx = t, li
         elif kind == QUAD:
@@ -89,9 +91,9 @@ def intersect_lights(lights, ox, oy, oz, dx, dy, dz, tmax, skip=-1):
 
 
 @njit(inline="always", cache=True)
-def _quad_normal(lights, li):
-    e1x, e1y, e1z = lights[li, 7], lights[li, 8], lights[li, 9]
-    e2x, e2y, e2z = lights[li, 10], lights[li, 11], lights[li, 12]
+def quad_normal(lights, li):
+    e1x, e1y, e1z = lights[li, LIGHT_E1], lights[li, LIGHT_E1 + 1], lights[li, LIGHT_E1 + 2]
+    e2x, e2y, e2z = lights[li, LIGHT_E2], lights[li, LIGHT_E2 + 1], lights[li, LIGHT_E2 + 2]
     nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
     inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
     return nx * inv, ny * inv, nz * inv
@@ -99,17 +101,17 @@ def _quad_normal(lights, li):
 
 @njit(cache=True)
 def _quad_hit(lights, li, ox, oy, oz, dx, dy, dz):
-    nx, ny, nz = _quad_normal(lights, li)
+    nx, ny, nz = quad_normal(lights, li)
     den = dx * nx + dy * ny + dz * nz
     if abs(den) < 1e-12:
         return INF
-    px, py, pz = lights[li, 4], lights[li, 5], lights[li, 6]
+    px, py, pz = lights[li, LIGHT_P0], lights[li, LIGHT_P0 + 1], lights[li, LIGHT_P0 + 2]
     t = ((px - ox) * nx + (py - oy) * ny + (pz - oz) * nz) / den
     if t <= 0.0:
         return INF
     hx, hy, hz = ox + t * dx - px, oy + t * dy - py, oz + t * dz - pz
-    e1x, e1y, e1z = lights[li, 7], lights[li, 8], lights[li, 9]
-    e2x, e2y, e2z = lights[li, 10], lights[li, 11], lights[li, 12]
+    e1x, e1y, e1z = lights[li, LIGHT_E1], lights[li, LIGHT_E1 + 1], lights[li, LIGHT_E1 + 2]
+    e2x, e2y, e2z = lights[li, LIGHT_E2], lights[li, LIGHT_E2 + 1], lights[li, LIGHT_E2 + 2]
     # Solve h = a e1 + b e2 in the plane via the Gram matrix.
     g11 = e1x * e1x + e1y * e1y + e1z * e1z
     g22 = e2x * e2x + e2y * e2y + e2z * e2z
@@ -127,27 +129,27 @@ def _quad_hit(lights, li, ox, oy, oz, dx, dy, dz):
 @njit(cache=True)
 def emitted_toward(lights, li, dx, dy, dz, ox, oy, oz, t):
     """Scale (0 or 1) of the light's radiance seen along a ray of direction d hitting it at distance t."""
-    kind = lights[li, 0]
+    kind = lights[li, LIGHT_TYPE]
     if kind == SPHERE:
-        hx = ox + t * dx - lights[li, 4]
-        hy = oy + t * dy - lights[li, 5]
-        hz = oz + t * dz - lights[li, 6]
+        hx = ox + t * dx - lights[li, LIGHT_P0]
+        hy = oy + t * dy - lights[li, LIGHT_P0 + 1]
+        hz = oz + t * dz - lights[li, LIGHT_P0 + 2]
         return 1.0 if hx * dx + hy * dy + hz * dz < 0.0 else 0.0
     if kind == QUAD:
-        nx, ny, nz = _quad_normal(lights, li)
+        nx, ny, nz = quad_normal(lights, li)
         c = nx * dx + ny * dy + nz * dz
-        return 1.0 if (c < 0.0 or lights[li, 14] > 0.0) else 0.0
+        return 1.0 if (c < 0.0 or lights[li, LIGHT_TWO_SIDED] > 0.0) else 0.0
     return 0.0
 
 
 @njit(cache=True)
 def light_pdf(lights, li, px, py, pz, dx, dy, dz, t):
     """Solid-angle pdf that light_sample from p returns direction d (hitting the light at distance t)."""
-    kind = lights[li, 0]
+    kind = lights[li, LIGHT_TYPE]
     if kind == ENVIRONMENT:
         return 1.0 / (4.0 * math.pi)
     if kind == SPHERE:
-        cx, cy, cz, rad = lights[li, 4] - px, lights[li, 5] - py, lights[li, 6] - pz, lights[li, 13]
+        cx, cy, cz, rad = lights[li, LIGHT_P0] - px, lights[li, LIGHT_P0 + 1] - py, lights[li, LIGHT_P0 + 2] - pz, lights[li, LIGHT_RADIUS]
         d2 = cx * cx + cy * cy + cz * cz
         if d2 <= rad * rad:
             return 0.0
@@ -155,11 +157,11 @@ def light_pdf(lights, li, px, py, pz, dx, dy, dz, t):
         one_minus_cos = s2 / (1.0 + math.sqrt(1.0 - s2))
         return 1.0 / (2.0 * math.pi * one_minus_cos)
     if kind == QUAD:
-        nx, ny, nz = _quad_normal(lights, li)
+        nx, ny, nz = quad_normal(lights, li)
         c = abs(nx * dx + ny * dy + nz * dz)
         if c <= 0.0:
             return 0.0
-        return t * t / (lights[li, 15] * c)
+        return t * t / (lights[li, LIGHT_AREA] * c)
     return 0.0
 
 
@@ -171,20 +173,20 @@ def light_sample(lights, li, px, py, pz, u1, u2):
     to the sampled point (inf for directional / environment), the radiance arriving (for delta lights the
     irradiance-like factor intensity / dist^2 with pdf 1), and its solid-angle pdf (0 = no sample).
     """
-    kind = lights[li, 0]
-    Lr, Lg, Lb = lights[li, 1], lights[li, 2], lights[li, 3]
+    kind = lights[li, LIGHT_TYPE]
+    Lr, Lg, Lb = lights[li, LIGHT_RGB], lights[li, LIGHT_RGB + 1], lights[li, LIGHT_RGB + 2]
     if kind == POINT:
-        dx, dy, dz = lights[li, 4] - px, lights[li, 5] - py, lights[li, 6] - pz
+        dx, dy, dz = lights[li, LIGHT_P0] - px, lights[li, LIGHT_P0 + 1] - py, lights[li, LIGHT_P0 + 2] - pz
         d2 = dx * dx + dy * dy + dz * dz
         d = math.sqrt(d2)
         return dx / d, dy / d, dz / d, d, Lr / d2, Lg / d2, Lb / d2, 1.0, True
     if kind == DIRECTIONAL:
-        return -lights[li, 7], -lights[li, 8], -lights[li, 9], INF, Lr, Lg, Lb, 1.0, True
+        return -lights[li, LIGHT_E1], -lights[li, LIGHT_E1 + 1], -lights[li, LIGHT_E1 + 2], INF, Lr, Lg, Lb, 1.0, True
     if kind == ENVIRONMENT:
         w = uniform_sphere(u1, u2)
         return w[0], w[1], w[2], INF, Lr, Lg, Lb, 1.0 / (4.0 * math.pi), False
     if kind == SPHERE:
-        cx, cy, cz, rad = lights[li, 4] - px, lights[li, 5] - py, lights[li, 6] - pz, lights[li, 13]
+        cx, cy, cz, rad = lights[li, LIGHT_P0] - px, lights[li, LIGHT_P0 + 1] - py, lights[li, LIGHT_P0 + 2] - pz, lights[li, LIGHT_RADIUS]
         d2 = cx * cx + cy * cy + cz * cz
         if d2 <= rad * rad:
             return 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, False
@@ -193,22 +195,22 @@ def light_sample(lights, li, px, py, pz, u1, u2):
         one_minus_cos_max = s2 / (1.0 + math.sqrt(1.0 - s2))
         cos_t = 1.0 - u1 * one_minus_cos_max
         w = around(cos_t, 2.0 * math.pi * u2, cx / d, cy / d, cz / d)
-        t, _ = _sphere_hit(px, py, pz, w[0], w[1], w[2], lights[li, 4], lights[li, 5], lights[li, 6], rad, 0.0)
+        t, _ = sphere_hit(px, py, pz, w[0], w[1], w[2], lights[li, LIGHT_P0], lights[li, LIGHT_P0 + 1], lights[li, LIGHT_P0 + 2], rad, 0.0)
         if t == INF:  # grazing the silhouette in floating point: place it on the tangent point
             t = d * cos_t
         return w[0], w[1], w[2], t, Lr, Lg, Lb, 1.0 / (2.0 * math.pi * one_minus_cos_max), False
     # QUAD
-    qx = lights[li, 4] + u1 * lights[li, 7] + u2 * lights[li, 10] - px
-    qy = lights[li, 5] + u1 * lights[li, 8] + u2 * lights[li, 11] - py
-    qz = lights[li, 6] + u1 * lights[li, 9] + u2 * lights[li, 12] - pz
+    qx = lights[li, LIGHT_P0] + u1 * lights[li, LIGHT_E1] + u2 * lights[li, LIGHT_E2] - px
+    qy = lights[li, LIGHT_P0 + 1] + u1 * lights[li, LIGHT_E1 + 1] + u2 * lights[li, LIGHT_E2 + 1] - py
+    qz = lights[li, LIGHT_P0 + 2] + u1 * lights[li, LIGHT_E1 + 2] + u2 * lights[li, LIGHT_E2 + 2] - pz
     d2 = qx * qx + qy * qy + qz * qz
     d = math.sqrt(d2)
     dx, dy, dz = qx / d, qy / d, qz / d
-    nx, ny, nz = _quad_normal(lights, li)
+    nx, ny, nz = quad_normal(lights, li)
     c = nx * dx + ny * dy + nz * dz
-    if c >= 0.0 and lights[li, 14] == 0.0:
+    if c >= 0.0 and lights[li, LIGHT_TWO_SIDED] == 0.0:
         return dx, dy, dz, d, 0.0, 0.0, 0.0, 0.0, False
     c = abs(c)
     if c < 1e-12:
         return dx, dy, dz, d, 0.0, 0.0, 0.0, 0.0, False
-    return dx, dy, dz, d, Lr, Lg, Lb, d2 / (lights[li, 15] * c), False
+    return dx, dy, dz, d, Lr, Lg, Lb, d2 / (lights[li, LIGHT_AREA] * c), False

@@ -7,7 +7,7 @@ The generator is SplitMix64 with one 64-bit state per path: a path's stream depe
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
@@ -79,6 +79,35 @@ def cosine_hemisphere(u1, u2, nx, ny, nz):
     r = math.sqrt(u1)
     phi = 2.0 * math.pi * u2
     return to_world(r * math.cos(phi), r * math.sin(phi), math.sqrt(max(0.0, 1.0 - u1)), nx, ny, nz)
+
+
+@njit(inline="always", cache=True)
+def cosine_around(u1, u2, nx, ny, nz):
+    """Cosine-weighted direction around n, in the frame (a x n, n x (a x n), n) with a = y when |n_x| > 0.9, else
+    x: the same distribution as cosine_hemisphere, another mapping of (u1, u2) (the point-based samples' own)."""
+    r, phi = math.sqrt(u1), 2.0 * math.pi * u2
+    ax, ay, az = (0.0, 1.0, 0.0) if abs(nx) > 0.9 else (1.0, 0.0, 0.0)
+    t1x, t1y, t1z = ay * nz - az * ny, az * nx - ax * nz, ax * ny - ay * nx
+    ln = math.sqrt(t1x * t1x + t1y * t1y + t1z * t1z)
+    t1x, t1y, t1z = t1x / ln, t1y / ln, t1z / ln
+    t2x, t2y, t2z = ny * t1z - nz * t1y, nz * t1x - nx * t1z, nx * t1y - ny * t1x
+    a, b, c = r * math.cos(phi), r * math.sin(phi), math.sqrt(max(0.0, 1.0 - u1))
+    return a * t1x + b * t2x + c * nx, a * t1y + b * t2y + c * ny, a * t1z + b * t2z + c * nz
+
+
+@njit(parallel=True, cache=True)
+def cosine_directions(normals, u1, u2, out):
+    """cosine_around for each row of normals (n, 3) with the uniform numbers u1[k], u2[k], into out (n, 3)."""
+    for k in prange(normals.shape[0]):
+        out[k, 0], out[k, 1], out[k, 2] = cosine_around(u1[k], u2[k], normals[k, 0], normals[k, 1], normals[k, 2])
+
+
+@njit(inline="always", cache=True)
+def depth_of_fraction(u, s):
+    """The depth d at which a share u of a beam is extinguished, 1 - e^(-s d) = u (s > 0): with u uniform on
+    [0, 1 - e^(-s d_max)) (stratified, or in equal steps), d has the truncated exponential's density
+    s e^(-s d) / (1 - e^(-s d_max)) on [0, d_max]."""
+    return -math.log1p(-u) / s
 
 
 @njit(inline="always", cache=True)

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from pbvol_cli import config as C
+from pbvol_cli.geometry.scene_build import MED_SEALED, SPH_SURFACE, SURF_MEDIUM_IN, SURF_MEDIUM_OUT, sphere_bounds
 
 
 def summarize(scene: C.Scene, path: Path) -> str:
@@ -36,7 +37,7 @@ def summarize(scene: C.Scene, path: Path) -> str:
         obj = _medium_size(b, k)
         ratio = obj / mfp
         lines.append(f"    {mi.label}: albedo {_f(alb)}, mean free path {_f(mfp)} {scene.unit}, g {mi.material.g:g}, "
-                     f"phase {mi.material.phase}{', sealed (no light reaches it directly)' if b.media[k, 8] else ''}")
+                     f"phase {mi.material.phase}{', sealed (no light reaches it directly)' if b.media[k, MED_SEALED] else ''}")
         lines.append(f"      object size {obj:.4g} = {_f(ratio)} mean free paths")
     if not any(L.type in ("sphere", "quad", "environment") for L in scene.lights):
         lines.append("  note: only delta lights: volpath cannot reach them through a refracting boundary")
@@ -45,15 +46,15 @@ def summarize(scene: C.Scene, path: Path) -> str:
 
 def _medium_size(b, k: int) -> float:
     """Diameter of the bounding box of the surfaces that bound medium k."""
-    surf = np.flatnonzero((b.surfaces[:, 1] == k) | (b.surfaces[:, 2] == k))
+    surf = np.flatnonzero(b.surfaces_bounding(k))
     pts = []
     if len(b.faces):
         tri = np.isin(b.tri_surface, surf)
         if tri.any():
             pts.append(b.vertices[b.faces[tri]].reshape(-1, 3).astype(float))
     for s in b.spheres:
-        if int(s[4]) in surf:
-            pts.append(np.array([s[:3] - s[3], s[:3] + s[3]]))
+        if int(s[SPH_SURFACE]) in surf:
+            pts.append(sphere_bounds(s))
     if not pts:
         return float("nan")
     p = np.concatenate(pts)

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pbvol_cli.config import LutSettings
+from pbvol_cli.multiple_scattering.layout import Layout
 from pbvol_cli.multiple_scattering.table import MSTable, TableSettings, build_table, resolve_particles
 from pbvol_cli.pipeline.cache import key_of, load_npz, save_npz_atomic
 
@@ -22,6 +24,14 @@ class TableResult:
     path: Path
     reused: bool
     seconds: float
+
+
+def table_settings(lut: LutSettings, particles: int | None = None, seed: int | None = None) -> TableSettings:
+    """The table builder's settings from a scene's [render.lut] (particles and seed: command-line overrides)."""
+    return TableSettings(particles=particles or lut.particles, collision_budget=lut.collision_budget,
+                         seed=lut.seed if seed is None else seed,
+                         layout=Layout(extent=lut.extent, kill_radius=2.0 * lut.extent),
+                         sh_order=lut.sh_order, merge_tol=lut.merge_tol)
 
 
 def table_path(cache: Path, alpha: float, g: float, phase_kind: int, settings: TableSettings) -> Path:

@@ -3,70 +3,46 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from pbvol_cli import config as C
+from pbvol_cli.geometry.scene_build import MediumInfo
 from pbvol_cli.physics.phase import KINDS
 
 
-@dataclass
-class MediumChannels:
-    label: str
-    material: C.Material
-    sigma_a: np.ndarray
-    sigma_s: np.ndarray
-
-
-def media_of_file(path: Path) -> tuple[list[MediumChannels], C.LutSettings]:
+def media_of_file(path: Path) -> tuple[list[MediumInfo], C.LutSettings]:
     """The media of a scene file (every distinct one) or of a material file, with the table settings to use."""
     data = C.read_toml(path)
     if "camera" in data or "shapes" in data:
         scene = C.load_scene(path)
-        seen, out = set(), []
-        for i, shape in enumerate(scene.shapes):
-            for fld in ("medium", "exterior_medium", "liquid"):
-                ref = getattr(shape, fld, None)
-                if ref is None:
-                    continue
-                mat, label = C.resolve_medium(ref, scene, path, f"shapes[{i}].{fld}")
-                key = mat.model_dump_json()
-                if key not in seen:
-                    seen.add(key)
-                    out.append(MediumChannels(label, mat, *mat.coefficients(scene.unit)))
-        return out, scene.render.lut
+        return ([MediumInfo(label, mat, *mat.coefficients(scene.unit)) for label, mat in C.scene_media(scene, path)],
+                scene.render.lut)
     mat = C.load_material(path)
-    return [MediumChannels(mat.name or path.stem, mat, *mat.coefficients(mat.length_unit))], C.LutSettings()
+    return [MediumInfo(mat.name or path.stem, mat, *mat.coefficients(mat.length_unit))], C.LutSettings()
 
 
 def precompute(path: Path, cache: Path, particles: int | None, seed: int | None, force: bool, quiet: bool,
                echo) -> list[dict]:
     """Build or reuse every table; echo(line) reports each. Returns one record per table."""
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-
-    from pbvol_cli.pipeline.lut import channel_tables, get_table
+    from pbvol_cli.pipeline.lut import channel_tables, get_table, table_settings
+    from pbvol_cli.pipeline.progress import progress_bar
 
     media, lut = media_of_file(path)
     if not media:
         echo(f"{path}: no participating media: nothing to precompute")
         return []
-    settings = lut.table_settings(particles, seed)
+    settings = table_settings(lut, particles, seed)
     records = []
     for m in media:
         kind = KINDS[m.material.phase]
         for alpha, channels in channel_tables(m.sigma_a, m.sigma_s):
             names = "".join("RGB"[c] for c in channels)
             label = f"{m.label} {names} (albedo {alpha:.6g}, g {m.material.g:g}, {m.material.phase})"
-            prog = Progress(TextColumn(label), BarColumn(), MofNCompleteColumn(), TextColumn("particles"),
-                            TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
-                            console=Console(stderr=True), disable=quiet)
-            task = prog.add_task(label, total=None)
+            prog, update = progress_bar(quiet, label, "particles")
             with prog:
-                r = get_table(alpha, m.material.g, kind, settings, cache, force,
-                              lambda d, t: prog.update(task, completed=d, total=t))
+                r = get_table(alpha, m.material.g, kind, settings, cache, force, update)
             size = r.path.stat().st_size
             met = r.table.metrics
             what = "reused cached table" if r.reused else f"built in {r.seconds:.1f} s"

@@ -5,7 +5,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import resource
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -18,6 +17,7 @@ import numpy as np
 from pbvol_cli import __version__
 from pbvol_cli import config as C
 from pbvol_cli.errors import PbvolError
+from pbvol_cli.pipeline.progress import peak_memory_mb, progress_bar, set_threads
 
 METHODS = ("volpath", "pbl")
 
@@ -37,44 +37,12 @@ class RenderOptions:
     quiet: bool = False
 
 
-def peak_memory_mb() -> float:
-    """Peak resident memory of this process so far (MiB)."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
 def scene_hash(scene: C.Scene, built) -> str:
     """Hash of everything the image depends on in the scene (config and resolved media)."""
     h = hashlib.sha256(scene.model_dump_json().encode())
     for arr in (built.surfaces, built.media, built.lights, built.spheres, built.vertices, built.faces):
         h.update(np.ascontiguousarray(arr).tobytes())
     return h.hexdigest()[:16]
-
-
-def set_threads(threads: int | None) -> int:
-    import numba
-
-    n = threads or numba.config.NUMBA_NUM_THREADS
-    n = max(1, min(int(n), numba.config.NUMBA_NUM_THREADS))
-    numba.set_num_threads(n)
-    return n
-
-
-def progress_bar(quiet: bool, label: str, unit: str = "paths"):
-    """A rich progress bar on stderr with ETA; returns (context manager, callback)."""
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-
-    prog = Progress(
-        TextColumn(label), BarColumn(), MofNCompleteColumn(), TextColumn(unit),
-        TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
-        console=Console(stderr=True), disable=quiet, transient=False,
-    )
-    task = prog.add_task(label, total=None)
-
-    def update(done, total):
-        prog.update(task, completed=done, total=total)
-
-    return prog, update
 
 
 def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview: Path | None = None,
@@ -101,7 +69,7 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
     t_build = time.perf_counter()
     built = build_scene(scene, scene_path, opts.resolution)
     t_build = time.perf_counter() - t_build
-    W, H = int(built.camera[12]), int(built.camera[13])
+    W, H = built.resolution
     if ref_img is not None and ref_img.shape[:2] != (H, W):
         raise PbvolError(f"{reference}: reference is {ref_img.shape[1]}x{ref_img.shape[0]}, render is {W}x{H}")
 
@@ -158,7 +126,7 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
 def _render_pbl(scene, built, spp, seed, threads, opts):
     """Light samples and tables from the cache (built when missing), then the camera pass."""
     from pbvol_cli.pipeline.cache import cache_dir
-    from pbvol_cli.pipeline.lut import get_table
+    from pbvol_cli.pipeline.lut import get_table, table_settings
     from pbvol_cli.pipeline.samples import get_light_samples
     from pbvol_cli.physics.phase import KINDS
     from pbvol_cli.render.pbl import COMPONENTS, SAMPLE_KEYS, MediumData, render_pbl, returned_samples
@@ -186,12 +154,13 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
     media_tables = {}
     for m, info in enumerate(built.medium_info):
         kind = KINDS[info.material.phase]
-        st = built.media[m, 0:3] + built.media[m, 3:6]
+        sig_a, sig_s = built.medium_sigmas(m)
+        st = sig_a + sig_s
         tables = []
         for c in range(3):
-            alpha = float(built.media[m, 3 + c] / st[c]) if st[c] > 0 else 0.0
+            alpha = float(sig_s[c] / st[c]) if st[c] > 0 else 0.0
             if ("multiple" in comps or "bounced" in comps) and st[c] > 0:
-                tables.append(get_table(round(alpha, 12), info.material.g, kind, scene.render.lut.table_settings(),
+                tables.append(get_table(round(alpha, 12), info.material.g, kind, table_settings(scene.render.lut),
                                         cache).table)
             else:
                 tables.append(None)
@@ -262,7 +231,7 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
             return None
         return MediumData(back, m, built.media[m], media_tables[m], BOUNCED_KERNEL)
 
-    W, H = int(built.camera[12]), int(built.camera[13])
+    W, H = built.resolution
     prog, update = progress_bar(opts.quiet, f"pbl {W}x{H} {spp} spp", "pixel samples")
     settings = {"kmax": pbl.kmax, "kmax_scattered": pbl.kmax_scattered, "cut_size": pbl.cut_size, "clamp": pbl.clamp,
                 "components": comps, "max_split_depth": pbl.max_split_depth, "roulette": pbl.roulette,

@@ -32,12 +32,13 @@ from types import SimpleNamespace
 import numpy as np
 from numba import njit, prange
 
-from pbvol_cli.geometry.scene_build import DIELECTRIC, BuiltScene
+from pbvol_cli.geometry.scene_build import DIELECTRIC, SPH_SURFACE, SURF_MEDIUM_IN, SURF_MEDIUM_OUT, SURF_TYPE, BuiltScene
 from pbvol_cli.physics.fresnel import fresnel_dielectric
-from pbvol_cli.physics.sampling import rand, seed_state
+from pbvol_cli.physics.sampling import cosine_around, rand, seed_state
 from pbvol_cli.pointbased.light_samples import beam_segments, layer_reflectance, slab_reflectance
 from pbvol_cli.pointbased.surface_samples import poisson_disk
-from pbvol_cli.render.intersect import closest_surface_hits
+from pbvol_cli.geometry.intersect import closest_surface_hits
+from pbvol_cli.render.interfaces import indices
 
 
 # single scattering of the bounced beams: a disc of this many times the boundary point's radius (x1: a few
@@ -53,15 +54,15 @@ def boundary_points(bs: BuiltScene, medium: int, count: int, seed: int):
     surface ids, area per point (scene units^2), the points' minimum distance); empty when no dielectric surface
     bounds it."""
     surf = bs.surfaces
-    ids = np.array([k for k in range(len(surf)) if (surf[k, 1] == medium or surf[k, 2] == medium)
-                    and surf[k, 0] == DIELECTRIC], np.int64)
+    ids = np.array([k for k in range(len(surf)) if (surf[k, SURF_MEDIUM_IN] == medium or surf[k, SURF_MEDIUM_OUT] == medium)
+                    and surf[k, SURF_TYPE] == DIELECTRIC], np.int64)
     if len(ids) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64), 0.0, 0.0
     tri = np.isin(bs.tri_surface, ids)
-    sph = bs.spheres[np.isin(bs.spheres[:, 4].astype(np.int64), ids)]
+    sph = bs.spheres[np.isin(bs.spheres[:, SPH_SURFACE].astype(np.int64), ids)]
     pos, nrm, sid, area, radius = poisson_disk(bs.vertices, bs.faces[tri], bs.tri_normals[tri],
                                                bs.tri_surface[tri], sph, count, seed)
-    inward = np.where((surf[sid, 1] == medium)[:, None], -nrm, nrm)  # normals point to the exterior
+    inward = np.where((surf[sid, SURF_MEDIUM_IN] == medium)[:, None], -nrm, nrm)  # normals point to the exterior
     return pos, inward, sid, area, radius
 
 
@@ -71,9 +72,8 @@ def _reflected_beams(surfaces, medium, pos, nin, sid, w, L, area, eps, R2, bpos,
     the glass wall behind the boundary, if any: slab_reflectance)."""
     for j in prange(pos.shape[0]):
         s = sid[j]
-        inside_is_interior = surfaces[s, 1] == medium
-        eta_i = surfaces[s, 3] if inside_is_interior else surfaces[s, 4]
-        eta_t = surfaces[s, 4] if inside_is_interior else surfaces[s, 3]
+        inside_is_interior = surfaces[s, SURF_MEDIUM_IN] == medium
+        eta_i, eta_t = indices(surfaces, s, not inside_is_interior)
         c = w[j, 0] * nin[j, 0] + w[j, 1] * nin[j, 1] + w[j, 2] * nin[j, 2]
         F = slab_reflectance(fresnel_dielectric(max(c, 1e-9), eta_t / eta_i)[0], R2[j]) if c > 0.0 else 0.0
         for k in range(3):
@@ -104,22 +104,13 @@ def _share_among_neighbours(pos, val, radius, out):
 
 
 @njit(parallel=True, cache=True)
-def _cosine_directions(nin, seed, stream, out, rng):
+def _gather_directions(nin, seed, stream, out, rng):
+    """A cosine-weighted direction into the medium from each boundary point (its own random stream, left in rng)."""
     for j in prange(nin.shape[0]):
         st = np.empty(1, np.uint64)
         st[0] = seed_state(seed, stream, j)
         u1, u2 = rand(st, 0), rand(st, 0)
-        r, phi = math.sqrt(u1), 2.0 * math.pi * u2
-        nx, ny, nz = nin[j, 0], nin[j, 1], nin[j, 2]
-        ax, ay, az = (0.0, 1.0, 0.0) if abs(nx) > 0.9 else (1.0, 0.0, 0.0)
-        t1x, t1y, t1z = ay * nz - az * ny, az * nx - ax * nz, ax * ny - ay * nx
-        ln = math.sqrt(t1x * t1x + t1y * t1y + t1z * t1z)
-        t1x, t1y, t1z = t1x / ln, t1y / ln, t1z / ln
-        t2x, t2y, t2z = ny * t1z - nz * t1y, nz * t1x - nx * t1z, nx * t1y - ny * t1x
-        a, b, c = r * math.cos(phi), r * math.sin(phi), math.sqrt(max(0.0, 1.0 - u1))
-        out[j, 0] = a * t1x + b * t2x + c * nx
-        out[j, 1] = a * t1y + b * t2y + c * ny
-        out[j, 2] = a * t1z + b * t2z + c * nz
+        out[j, 0], out[j, 1], out[j, 2] = cosine_around(u1, u2, nin[j, 0], nin[j, 1], nin[j, 2])
         rng[j] = st[0]
 
 
@@ -156,7 +147,7 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
     data = source
     for g in range(generations):
         w, rng = np.zeros((n, 3)), np.zeros(n, np.uint64)
-        _cosine_directions(nin, seed, 0xB0 + 4 * g, w, rng)
+        _gather_directions(nin, seed, 0xB0 + 4 * g, w, rng)
         t, _, ng, _ = closest_surface_hits(caster, bs, pos + bs.eps * nin, w)
         ok = np.flatnonzero(np.isfinite(t))
         L = np.zeros((n, 3))

@@ -19,12 +19,14 @@ import numpy as np
 from numba import njit, prange
 
 from pbvol_cli.geometry.raycast import TriangleCaster
-from pbvol_cli.geometry.scene_build import DIELECTRIC, NULL, BuiltScene
+from pbvol_cli.geometry.scene_build import (DIELECTRIC, MED_SIGMA_A, MED_SIGMA_S, NULL, SPH_SURFACE, SURF_MEDIUM_IN,
+                                           SURF_MEDIUM_OUT, SURF_TYPE, BuiltScene)
 from pbvol_cli.physics.fresnel import fresnel_dielectric, reflect, refract
 from pbvol_cli.physics.lights import light_sample
-from pbvol_cli.physics.sampling import rand, seed_state
+from pbvol_cli.physics.sampling import cosine_directions, depth_of_fraction, rand, seed_state
 from pbvol_cli.pointbased.surface_samples import poisson_disk
-from pbvol_cli.render.intersect import closest_surface_hits, visible
+from pbvol_cli.geometry.intersect import closest_surface_hits, visible
+from pbvol_cli.render.interfaces import dielectric_fresnel, incident_side, indices, medium_beyond, shadow_ray_length
 
 
 PLANE_COLS = 8  # v_plane's columns: the entry plane's n (3) and q, the exit plane's n (3) and q
@@ -71,9 +73,9 @@ def outer_layer_surfaces(bs: BuiltScene) -> np.ndarray:
     """Surfaces on the outside of medium-holding shapes: those of a shape that bounds a medium somewhere, with
     vacuum on their exterior (a glass of liquid: the glass's outside and the liquid's free surface)."""
     surf = bs.surfaces
-    holds = {int(bs.surface_shape[k]) for k in range(len(surf)) if surf[k, 1] >= 0 or surf[k, 2] >= 0}
-    return np.array([k for k in range(len(surf)) if int(bs.surface_shape[k]) in holds and surf[k, 2] < 0
-                     and surf[k, 0] in (DIELECTRIC, NULL)], np.int64)
+    holds = {int(bs.surface_shape[k]) for k in range(len(surf)) if surf[k, SURF_MEDIUM_IN] >= 0 or surf[k, SURF_MEDIUM_OUT] >= 0}
+    return np.array([k for k in range(len(surf)) if int(bs.surface_shape[k]) in holds and surf[k, SURF_MEDIUM_OUT] < 0
+                     and surf[k, SURF_TYPE] in (DIELECTRIC, NULL)], np.int64)
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -100,14 +102,10 @@ def _interface(surfaces, s, d, ng, ns, k):
     """A beam k meeting surface s: (entering, shading and geometric normals on the incident side, eta_i, eta_t,
     cos_i, Fresnel F, cos_t)."""
     dx, dy, dz = d[k, 0], d[k, 1], d[k, 2]
-    entering = dx * ng[k, 0] + dy * ng[k, 1] + dz * ng[k, 2] < 0.0
-    sg = 1.0 if entering else -1.0
-    nx, ny, nz = sg * ns[k, 0], sg * ns[k, 1], sg * ns[k, 2]
-    gx, gy, gz = sg * ng[k, 0], sg * ng[k, 1], sg * ng[k, 2]
-    eta_i = surfaces[s, 4] if entering else surfaces[s, 3]
-    eta_t = surfaces[s, 3] if entering else surfaces[s, 4]
-    cos_i = max(-(dx * nx + dy * ny + dz * nz), 1e-9)
-    F, cos_t = fresnel_dielectric(cos_i, eta_t / eta_i)
+    entering, gx, gy, gz, nx, ny, nz = incident_side(dx, dy, dz, ng[k, 0], ng[k, 1], ng[k, 2], ns[k, 0], ns[k, 1],
+                                                     ns[k, 2])
+    eta_i, eta_t = indices(surfaces, s, entering)
+    cos_i, F, cos_t = dielectric_fresnel(eta_i, eta_t, dx, dy, dz, nx, ny, nz)
     return entering, nx, ny, nz, gx, gy, gz, eta_i, eta_t, cos_i, F, cos_t
 
 
@@ -123,7 +121,7 @@ def _cross(surfaces, pos, d, power, medium, cosx, ng, ns, t, surf, eps, alive, b
         if not alive[k]:
             continue
         s = surf[k]
-        if s < 0 or (surfaces[s, 0] != DIELECTRIC and surfaces[s, 0] != NULL):
+        if s < 0 or (surfaces[s, SURF_TYPE] != DIELECTRIC and surfaces[s, SURF_TYPE] != NULL):
             alive[k] = False
             continue
         dx, dy, dz = d[k, 0], d[k, 1], d[k, 2]
@@ -144,7 +142,7 @@ def _cross(surfaces, pos, d, power, medium, cosx, ng, ns, t, surf, eps, alive, b
             pos[k, c] = pos[k, c] + t[k] * d[k, c] - eps * (gx if c == 0 else (gy if c == 1 else gz))
         d[k, 0], d[k, 1], d[k, 2] = wx, wy, wz
         bn[k, 0], bn[k, 1], bn[k, 2] = gx, gy, gz
-        medium[k] = int(surfaces[s, 1]) if entering else int(surfaces[s, 2])
+        medium[k] = medium_beyond(surfaces, s, entering)
         cosx[k] = cos_t
 
 
@@ -155,10 +153,10 @@ def _into_layer(surfaces, pos, d, t, surf, ng, ns, eps, out_pos, out_dir, layer_
     for k in prange(pos.shape[0]):
         ok[k] = False
         s = surf[k]
-        if s < 0 or t[k] == np.inf or surfaces[s, 0] != DIELECTRIC:
+        if s < 0 or t[k] == np.inf or surfaces[s, SURF_TYPE] != DIELECTRIC:
             continue
         entering, nx, ny, nz, gx, gy, gz, eta_i, eta_t, cos_i, F, cos_t = _interface(surfaces, s, d, ng, ns, k)
-        far_medium = surfaces[s, 1] if entering else surfaces[s, 2]
+        far_medium = medium_beyond(surfaces, s, entering)
         if F >= 1.0 or far_medium >= 0 or eta_t == 1.0:
             continue
         wx, wy, wz = refract(d[k, 0], d[k, 1], d[k, 2], nx, ny, nz, eta_t / eta_i, cos_i, cos_t)
@@ -176,10 +174,10 @@ def _layer_exit(surfaces, d, surf, ng, layer_eta, R2):
     for k in prange(d.shape[0]):
         s = surf[k]
         R2[k] = 0.0
-        if s < 0 or (surfaces[s, 0] != DIELECTRIC and surfaces[s, 0] != NULL):
+        if s < 0 or (surfaces[s, SURF_TYPE] != DIELECTRIC and surfaces[s, SURF_TYPE] != NULL):
             continue
         c = d[k, 0] * ng[k, 0] + d[k, 1] * ng[k, 1] + d[k, 2] * ng[k, 2]
-        eta_beyond = surfaces[s, 3] if c < 0.0 else surfaces[s, 4]
+        eta_beyond = indices(surfaces, s, c < 0.0)[1]
         R2[k] = fresnel_dielectric(min(abs(c), 1.0), eta_beyond / layer_eta[k])[0]
 
 
@@ -226,19 +224,19 @@ def _segments(media, surfaces, pos, d, power, medium, area, t, surf, ng, ns, eps
             continue
         smin = np.inf
         for c in range(3):
-            smin = min(smin, media[m, c] + media[m, 3 + c])
+            smin = min(smin, media[m, MED_SIGMA_A + c] + media[m, MED_SIGMA_S + c])
         frac = -math.expm1(-smin * tex) if smin > 0.0 else 1.0
         t0 = 0.0
         for q in range(nseg):
             u = (q + 1.0) / nseg * frac
-            t1 = -math.log1p(-u) / smin if smin > 0.0 else tex * (q + 1.0) / nseg
+            t1 = depth_of_fraction(u, smin) if smin > 0.0 else tex * (q + 1.0) / nseg
             if q == nseg - 1:
                 t1 = tex
             i = base + q
             for c in range(3):
                 o_start[i, c] = pos[k, c] + t0 * d[k, c]
                 o_dir[i, c] = d[k, c]
-                o_power[i, c] = power[k, c] * math.exp(-(media[m, c] + media[m, 3 + c]) * t0)
+                o_power[i, c] = power[k, c] * math.exp(-(media[m, MED_SIGMA_A + c] + media[m, MED_SIGMA_S + c]) * t0)
             o_len[i] = t1 - t0
             o_area[i] = area[k]
             o_medium[i] = m
@@ -258,7 +256,7 @@ def _segments(media, surfaces, pos, d, power, medium, area, t, surf, ng, ns, eps
             t0 = t1
         # internal reflection at the exit
         s = surf[k]
-        if surfaces[s, 0] != DIELECTRIC:
+        if surfaces[s, SURF_TYPE] != DIELECTRIC:
             alive[k] = False
             continue
         dx, dy, dz = d[k, 0], d[k, 1], d[k, 2]
@@ -267,7 +265,7 @@ def _segments(media, surfaces, pos, d, power, medium, area, t, surf, ng, ns, eps
         bn[k, 0], bn[k, 1], bn[k, 2] = ng[k, 0], ng[k, 1], ng[k, 2]
         pmax = 0.0
         for c in range(3):
-            power[k, c] *= math.exp(-(media[m, c] + media[m, 3 + c]) * tex) * F
+            power[k, c] *= math.exp(-(media[m, MED_SIGMA_A + c] + media[m, MED_SIGMA_S + c]) * tex) * F
             pmax = max(pmax, power[k, c])
         if pmax < p_min[k]:
             # Russian roulette on weak reflections (unbiased): a beam trapped by total internal reflection would
@@ -294,7 +292,7 @@ def _lit(caster, bs, li, pos, nrm, eps, seed, wdir, dist, E):
     ok = np.zeros(len(pos), np.bool_)
     _connect(bs.lights, li, pos, nrm, eps, seed, wdir, dist, E, ok)
     idx = np.flatnonzero(ok)
-    return idx[visible(caster, bs, pos[idx] + eps * nrm[idx], wdir[idx], dist[idx] * (1 - 1e-7) - 2 * eps,
+    return idx[visible(caster, bs, pos[idx] + eps * nrm[idx], wdir[idx], shadow_ray_length(dist[idx], eps),
                        np.full(len(idx), li, np.int64))]
 
 
@@ -309,24 +307,19 @@ def _indirect(caster, bs, pos, nrm, sid, eps, seed, returned_orders="1,2,3+"):
 
     Returns (sample indices, directions toward the light's origin, irradiance of the light that has not scattered
     in a medium on its way, irradiance of the light that has: the bounced layer's)."""
-    from pbvol_cli.render.intersect import light_hits
+    from pbvol_cli.geometry.intersect import light_hits
     from pbvol_cli.render.volpath import trace_radiance
 
     n = len(pos)
     rng = np.random.default_rng([seed, 0x1D1])
     u1, u2 = rng.random(n), rng.random(n)
-    r, phi = np.sqrt(u1), 2 * np.pi * u2
-    local = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(0.0, 1 - u1))], axis=1)
-    a = np.where(np.abs(nrm[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
-    t1 = np.cross(a, nrm)
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    t2 = np.cross(nrm, t1)
-    wdir = local[:, :1] * t1 + local[:, 1:2] * t2 + local[:, 2:] * nrm
+    wdir = np.zeros((n, 3))
+    cosine_directions(np.ascontiguousarray(nrm), u1, u2, wdir)
     origin = pos + eps * nrm
     t, s, _, _ = closest_surface_hits(caster, bs, origin, wdir)
     hit = np.isfinite(t) & (s >= 0)
     sc = np.where(hit, s, 0)
-    own_layer = (np.isin(bs.surfaces[sc, 0], (DIELECTRIC, NULL))
+    own_layer = (np.isin(bs.surfaces[sc, SURF_TYPE], (DIELECTRIC, NULL))
                  & (bs.surface_shape[sc] == bs.surface_shape[sid]))
     tl, li = np.empty(n), np.empty(n, np.int64)
     light_hits(bs.lights, origin, wdir, np.where(hit, t, np.inf), tl, li, np.full(n, -1, np.int64))
@@ -416,7 +409,7 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
     if len(outer) == 0:
         raise ValueError("no medium-holding object with a transparent boundary to place light samples on")
     tri = np.isin(bs.tri_surface, outer)
-    sph = bs.spheres[np.isin(bs.spheres[:, 4].astype(np.int64), outer)]
+    sph = bs.spheres[np.isin(bs.spheres[:, SPH_SURFACE].astype(np.int64), outer)]
     advance()
     pos, nrm, sid, area, spacing = poisson_disk(bs.vertices, bs.faces[tri], bs.tri_normals[tri], bs.tri_surface[tri], sph,
                                           surface_samples, seed)

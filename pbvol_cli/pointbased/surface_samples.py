@@ -12,6 +12,7 @@ import math
 import numpy as np
 from numba import njit
 
+from pbvol_cli.geometry.scene_build import SPH_CENTER, SPH_RADIUS, SPH_SURFACE
 from pbvol_cli.physics.sampling import rand, seed_state, uniform_sphere
 
 SLOTS = 8  # a cube of side r holds at most 8 points at mutual distance >= r
@@ -46,8 +47,8 @@ def _candidates(V, F, tri_normals, cum_area, spheres, sphere_cum, n, seed, pos, 
             d = uniform_sphere(rand(st, 0), rand(st, 0))
             for c in range(3):
                 nrm[k, c] = d[c]
-                pos[k, c] = spheres[s, c] + spheres[s, 3] * d[c]
-            surf_idx[k] = int(spheres[s, 4])
+                pos[k, c] = spheres[s, SPH_CENTER + c] + spheres[s, SPH_RADIUS] * d[c]
+            surf_idx[k] = int(spheres[s, SPH_SURFACE])
 
 
 @njit(cache=True)
@@ -100,7 +101,7 @@ def poisson_disk(V, F, tri_normals, tri_surface, spheres, target: int, seed: int
     tri_area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1) if len(F) else np.zeros(0)
     cum = np.cumsum(tri_area)
     sph = np.asarray(spheres, np.float64).reshape(-1, 5)
-    sph_area = 4 * np.pi * sph[:, 3] ** 2
+    sph_area = 4 * np.pi * sph[:, SPH_RADIUS] ** 2
     total_tri = float(cum[-1]) if len(cum) else 0.0
     sph_cum = total_tri + np.cumsum(sph_area)
     area = total_tri + float(sph_area.sum())

@@ -5,6 +5,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from pbvol_cli.geometry.scene_build import CAM_FORWARD, CAM_HEIGHT, CAM_POS, CAM_RIGHT, CAM_UP, CAM_WIDTH
 from pbvol_cli.physics.sampling import rand, seed_state
 
 
@@ -15,7 +16,7 @@ def generate_camera_rays(cam, seed, first_path, n, pos, dirs, pixel, rng):
     Path p is sample p // (W*H) of pixel p % (W*H); pixels run row by row from the top left.
     Its random stream depends only on (seed, pixel, sample).
     """
-    W, H = int(cam[12]), int(cam[13])
+    W, H = int(cam[CAM_WIDTH]), int(cam[CAM_HEIGHT])
     npix = W * H
     for k in prange(n):
         p = first_path + k
@@ -25,10 +26,10 @@ def generate_camera_rays(cam, seed, first_path, n, pos, dirs, pixel, rng):
         px, py = pix % W, pix // W
         sx = 2.0 * (px + rand(rng, k)) / W - 1.0
         sy = 1.0 - 2.0 * (py + rand(rng, k)) / H
-        dx = cam[3] + sx * cam[6] + sy * cam[9]
-        dy = cam[4] + sx * cam[7] + sy * cam[10]
-        dz = cam[5] + sx * cam[8] + sy * cam[11]
+        dx = cam[CAM_FORWARD] + sx * cam[CAM_RIGHT] + sy * cam[CAM_UP]
+        dy = cam[CAM_FORWARD + 1] + sx * cam[CAM_RIGHT + 1] + sy * cam[CAM_UP + 1]
+        dz = cam[CAM_FORWARD + 2] + sx * cam[CAM_RIGHT + 2] + sy * cam[CAM_UP + 2]
         inv = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
-        pos[k, 0], pos[k, 1], pos[k, 2] = cam[0], cam[1], cam[2]
+        pos[k, 0], pos[k, 1], pos[k, 2] = cam[CAM_POS], cam[CAM_POS + 1], cam[CAM_POS + 2]
         dirs[k, 0], dirs[k, 1], dirs[k, 2] = dx * inv, dy * inv, dz * inv
         pixel[k] = pix

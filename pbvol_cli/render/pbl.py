@@ -25,13 +25,15 @@ import numpy as np
 from numba import njit, prange
 
 from pbvol_cli.geometry.raycast import TriangleCaster
-from pbvol_cli.geometry.scene_build import DIELECTRIC, DIFFUSE, MIRROR, NULL, BuiltScene
-from pbvol_cli.physics.fresnel import fresnel_dielectric, reflect, refract
-from pbvol_cli.physics.lights import ENVIRONMENT, emitted_toward, intersect_lights, light_sample
-from pbvol_cli.physics.sampling import cosine_hemisphere, rand, seed_state
+from pbvol_cli.geometry.scene_build import (DIELECTRIC, DIFFUSE, MED_G, MED_PHASE, MED_SIGMA_A, MED_SIGMA_S, MIRROR, NULL,
+                                           SURF_ALBEDO, SURF_TYPE, BuiltScene)
+from pbvol_cli.physics.fresnel import reflect, refract
+from pbvol_cli.physics.lights import ENVIRONMENT, LIGHT_RGB, LIGHT_TYPE, emitted_toward, light_sample
+from pbvol_cli.physics.sampling import cosine_hemisphere, depth_of_fraction, rand, seed_state
 from pbvol_cli.pointbased.estimators import END_EXTENSION, double_multiple, single_scattering
 from pbvol_cli.render.camera import generate_camera_rays
-from pbvol_cli.render.intersect import closest_surface_hits, light_hits, visible
+from pbvol_cli.render.interfaces import dielectric_fresnel, incident_side, indices, medium_beyond, shadow_ray_length
+from pbvol_cli.geometry.intersect import closest_surface_hits, light_hits, visible
 
 COMPONENTS = ("single", "double", "multiple", "bounced")
 
@@ -43,8 +45,8 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse, pla
     planes[i]: the boundary's tangent planes where the segment starts and ends (segment_planes), the nearer of
     which is each point's for the multiple term's image."""
     tree, v_start, v_dir, v_len, v_power, v_area, v_centre, v_scat, v_rb, tabs, v_ends, v_plane, r_near = md
-    sig_a, sig_s = med[0:3], med[3:6]
-    kind, g = int(med[6]), med[7]
+    sig_a, sig_s = med[MED_SIGMA_A:MED_SIGMA_A + 3], med[MED_SIGMA_S:MED_SIGMA_S + 3]
+    kind, g = int(med[MED_PHASE]), med[MED_G]
     kmax, cut_size, rclamp, k2 = int(settings[0]), int(settings[1]), settings[2], int(settings[6])
     do_s, do_d, do_m = settings[3] > 0, settings[4] > 0, settings[5] > 0
     dmax = tseg[i]
@@ -65,7 +67,7 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, md, settings, out, diffuse, pla
         for k in range(n):
             u = (k + xi) / n * frac
             if s > 0.0:
-                d = -math.log1p(-u) / s
+                d = depth_of_fraction(u, s)
                 pdf = s * math.exp(-s * d) / frac
             else:
                 d = u * dmax
@@ -162,27 +164,23 @@ def _interact(surfaces, media, lights, pos, dirs, beta, medium, depth, rng, t, s
         if li[i] >= 0:  # an area light in front of the surface
             e = emitted_toward(lights, li[i], dx, dy, dz, pos[i, 0], pos[i, 1], pos[i, 2], t[i])
             for c in range(3):
-                emit[i, c] += beta[i, c] * lights[li[i], 1 + c] * e
+                emit[i, c] += beta[i, c] * lights[li[i], LIGHT_RGB + c] * e
             continue
         s = surf[i]
         if s < 0 and not counts:
             continue
         if s < 0:
             for k in range(nl):
-                if lights[k, 0] == ENVIRONMENT:
+                if lights[k, LIGHT_TYPE] == ENVIRONMENT:
                     for c in range(3):
-                        emit[i, c] += beta[i, c] * lights[k, 1 + c]
+                        emit[i, c] += beta[i, c] * lights[k, LIGHT_RGB + c]
             continue
         if depth[i] >= max_depth:
             continue
         hx, hy, hz = pos[i, 0] + t[i] * dx, pos[i, 1] + t[i] * dy, pos[i, 2] + t[i] * dz
-        entering = dx * ng[i, 0] + dy * ng[i, 1] + dz * ng[i, 2] < 0.0
-        sg = 1.0 if entering else -1.0
-        gx, gy, gz = sg * ng[i, 0], sg * ng[i, 1], sg * ng[i, 2]
-        nx, ny, nz = sg * ns[i, 0], sg * ns[i, 1], sg * ns[i, 2]
-        if nx * gx + ny * gy + nz * gz <= 0.0:
-            nx, ny, nz = gx, gy, gz
-        stype = surfaces[s, 0]
+        entering, gx, gy, gz, nx, ny, nz = incident_side(dx, dy, dz, ng[i, 0], ng[i, 1], ng[i, 2], ns[i, 0], ns[i, 1],
+                                                         ns[i, 2])
+        stype = surfaces[s, SURF_TYPE]
         if stype == DIFFUSE:
             # direct light from every light, one sample each (the environment by cosine-weighted directions)
             st = np.empty(1, np.uint64)
@@ -191,9 +189,9 @@ def _interact(surfaces, media, lights, pos, dirs, beta, medium, depth, rng, t, s
                 j = i * nl + lk
                 sh_ok[j] = False
                 u1, u2 = rand(st, 0), rand(st, 0)
-                if lights[lk, 0] == ENVIRONMENT:
+                if lights[lk, LIGHT_TYPE] == ENVIRONMENT:
                     wx, wy, wz = _cosine_direction(u1, u2, nx, ny, nz)
-                    dist, Lr, Lg, Lb = np.inf, lights[lk, 1], lights[lk, 2], lights[lk, 3]
+                    dist, Lr, Lg, Lb = np.inf, lights[lk, LIGHT_RGB], lights[lk, LIGHT_RGB + 1], lights[lk, LIGHT_RGB + 2]
                     c = wx * nx + wy * ny + wz * nz
                     f = 1.0  # (c / pi) / pdf, pdf = c / pi
                     ok = c > 0.0
@@ -203,12 +201,12 @@ def _interact(surfaces, media, lights, pos, dirs, beta, medium, depth, rng, t, s
                     ok = pdf > 0.0 and c > 0.0
                     f = c / math.pi / pdf if ok else 0.0
                 if ok and wx * gx + wy * gy + wz * gz > 0.0:
-                    sh_C[j, 0] = beta[i, 0] * surfaces[s, 5] * f * Lr
-                    sh_C[j, 1] = beta[i, 1] * surfaces[s, 6] * f * Lg
-                    sh_C[j, 2] = beta[i, 2] * surfaces[s, 7] * f * Lb
+                    sh_C[j, 0] = beta[i, 0] * surfaces[s, SURF_ALBEDO] * f * Lr
+                    sh_C[j, 1] = beta[i, 1] * surfaces[s, SURF_ALBEDO + 1] * f * Lg
+                    sh_C[j, 2] = beta[i, 2] * surfaces[s, SURF_ALBEDO + 2] * f * Lb
                     sh_pos[j, 0], sh_pos[j, 1], sh_pos[j, 2] = hx + eps * gx, hy + eps * gy, hz + eps * gz
                     sh_dir[j, 0], sh_dir[j, 1], sh_dir[j, 2] = wx, wy, wz
-                    sh_dist[j] = dist * (1.0 - 1e-7) - 2.0 * eps if dist < np.inf else np.inf
+                    sh_dist[j] = shadow_ray_length(dist, eps)
                     sh_ok[j] = True
             if n_diffuse < max_diffuse:
                 j = 2 * i
@@ -217,7 +215,7 @@ def _interact(surfaces, media, lights, pos, dirs, beta, medium, depth, rng, t, s
                     child_dir[j, 0], child_dir[j, 1], child_dir[j, 2] = wx, wy, wz
                     child_pos[j, 0], child_pos[j, 1], child_pos[j, 2] = hx + eps * gx, hy + eps * gy, hz + eps * gz
                     for c in range(3):  # albedo: (albedo / pi) cos / (cos / pi)
-                        child_beta[j, c] = beta[i, c] * surfaces[s, 5 + c]
+                        child_beta[j, c] = beta[i, c] * surfaces[s, SURF_ALBEDO + c]
                     child_med[j] = medium[i]
                     child_state[j] = (n_diffuse + 1) << 2
                     child_ok[j] = True
@@ -228,12 +226,12 @@ def _interact(surfaces, media, lights, pos, dirs, beta, medium, depth, rng, t, s
         cos_i = cos_t = 1.0
         if stype == MIRROR:
             F, kt = 1.0, 0.0
-            rscale = (surfaces[s, 5], surfaces[s, 6], surfaces[s, 7])
+            rscale = (surfaces[s, SURF_ALBEDO], surfaces[s, SURF_ALBEDO + 1], surfaces[s, SURF_ALBEDO + 2])
         else:
-            eta_i = surfaces[s, 4] if entering else surfaces[s, 3]
-            eta_t = surfaces[s, 3] if entering else surfaces[s, 4]
-            cos_i = max(-(dx * nx + dy * ny + dz * nz), 1e-9)
-            F, cos_t = fresnel_dielectric(cos_i, eta_t / eta_i) if stype == DIELECTRIC else (0.0, cos_i)
+            eta_i, eta_t = indices(surfaces, s, entering)
+            cos_i, F, cos_t = dielectric_fresnel(eta_i, eta_t, dx, dy, dz, nx, ny, nz)
+            if stype != DIELECTRIC:
+                F, cos_t = 0.0, cos_i
             kt = (1.0 - F) * (eta_i / eta_t) ** 2
             rscale = (1.0, 1.0, 1.0)
         if F > 0.0:
@@ -256,7 +254,7 @@ def _interact(surfaces, media, lights, pos, dirs, beta, medium, depth, rng, t, s
             child_pos[j, 0], child_pos[j, 1], child_pos[j, 2] = hx - eps * gx, hy - eps * gy, hz - eps * gz
             for c in range(3):
                 child_beta[j, c] = beta[i, c] * kt
-            child_med[j] = int(surfaces[s, 1]) if entering else int(surfaces[s, 2])
+            child_med[j] = medium_beyond(surfaces, s, entering)
             child_state[j] = state[i] | 2
             child_ok[j] = True
 
@@ -321,10 +319,10 @@ class MediumData:
         self.power = np.ascontiguousarray(samples.v_power[sel])
         # single scattering's kernel: a disc of beam_width x the beam's own radius (area x beam_width^2)
         self.area = np.ascontiguousarray(samples.v_area[sel]) * beam_width ** 2
-        st = media_row[0:3] + media_row[3:6]
+        st = media_row[MED_SIGMA_A:MED_SIGMA_A + 3] + media_row[MED_SIGMA_S:MED_SIGMA_S + 3]
         safe = np.where(st > 0, st, 1.0)
         absorbed = -np.expm1(-st[None, :] * self.len[:, None])
-        self.scat = self.power * np.where(st > 0, media_row[3:6] / safe, 0.0)[None, :] * absorbed
+        self.scat = self.power * np.where(st > 0, media_row[MED_SIGMA_S:MED_SIGMA_S + 3] / safe, 0.0)[None, :] * absorbed
         self.centre = self.start + 0.5 * self.len[:, None] * self.dir
         rb = np.sqrt(self.area / np.pi)  # the kernel's radius: the boxes must hold it
         self.rb = rb / beam_width  # the beam's own radius: double scattering's 1/r^2 smoothing
@@ -409,7 +407,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, settings: di
     with 0 (auto) chosen per pass from the variances measured on the passes before it (auto_surface_paths): the
     oil and wine glasses' images are mostly surface noise, the milk's and the wax's mostly the medium's.
     Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats; stats["surface_paths"]: k of each pass)."""
-    W, H = int(bs.camera[12]), int(bs.camera[13])
+    W, H = bs.resolution
     npix = W * H
     fixed = int(settings.get("surface_paths", 1))
     sett = np.array([settings["kmax"], settings["cut_size"], settings["clamp"],
@@ -513,7 +511,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
                     eval_segments(pool, threads, evb, pos, dirs, beta_b, tev, rng, bs.media[m], mdb.kernel_tuple(),
                                   sett_b, cb3, state >> 2, planes)
                     contrib[:, 3] += cb3.sum(axis=1)
-            st = bs.media[m, 0:3] + bs.media[m, 3:6]
+            st = sum(bs.medium_sigmas(m))
             beta[sub] *= np.exp(-st[None, :] * tev[sub, None])
         for c, name in enumerate(COMPONENTS):
             for ch in range(3):

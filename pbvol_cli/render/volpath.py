@@ -32,13 +32,16 @@ from numba import njit, prange
 
 from pbvol_cli.geometry.distance_grid import mesh_distance_bound
 from pbvol_cli.geometry.raycast import TriangleCaster
-from pbvol_cli.geometry.scene_build import DIELECTRIC, DIFFUSE, MIRROR, NULL, BuiltScene
-from pbvol_cli.physics.fresnel import fresnel_dielectric, reflect, refract
-from pbvol_cli.physics.lights import ENVIRONMENT, emitted_toward, light_pdf, light_sample
+from pbvol_cli.geometry.scene_build import (DIELECTRIC, DIFFUSE, MED_G, MED_PHASE, MED_SEALED, MED_SIGMA_A, MED_SIGMA_S,
+                                           MIRROR, NULL, SPH_CENTER, SPH_RADIUS, SPH_SURFACE, SURF_ALBEDO, SURF_TYPE,
+                                           BuiltScene)
+from pbvol_cli.physics.fresnel import reflect, refract
+from pbvol_cli.physics.lights import ENVIRONMENT, LIGHT_RGB, LIGHT_TYPE, emitted_toward, light_pdf, light_sample
 from pbvol_cli.physics.phase import phase_eval, phase_sample
 from pbvol_cli.physics.sampling import cosine_hemisphere, power_heuristic, rand, seed_state
 from pbvol_cli.render.camera import generate_camera_rays
-from pbvol_cli.render.intersect import analytic_distance_bound, analytic_hit, mesh_shading_normal
+from pbvol_cli.render.interfaces import dielectric_fresnel, incident_side, indices, medium_beyond, shadow_ray_length
+from pbvol_cli.geometry.intersect import analytic_distance_bound, analytic_hit, mesh_shading_normal
 
 DEAD, NEED_CAST, CONTINUE = 0, 1, 2
 INF = np.inf
@@ -127,7 +130,7 @@ def _sample_flight(media, m, beta, i, rng):
         return INF
     u = rand(rng, i) * s
     c = 0 if u < b0 else (1 if u < b0 + b1 else 2)
-    st = media[m, c] + media[m, 3 + c]
+    st = media[m, MED_SIGMA_A + c] + media[m, MED_SIGMA_S + c]
     if st <= 0.0:
         return INF
     return -math.log(1.0 - rand(rng, i)) / st
@@ -141,7 +144,7 @@ def _flight_weight(media, m, beta, i, t, scatter):
     pdf = 0.0
     tr0 = tr1 = tr2 = 0.0
     for c in range(3):
-        st = media[m, c] + media[m, 3 + c]
+        st = media[m, MED_SIGMA_A + c] + media[m, MED_SIGMA_S + c]
         tr = math.exp(-st * t)
         pc = (b0 if c == 0 else (b1 if c == 1 else b2)) / s
         pdf += pc * (st * tr if scatter else tr)
@@ -155,9 +158,9 @@ def _flight_weight(media, m, beta, i, t, scatter):
         beta[i, 0] = beta[i, 1] = beta[i, 2] = 0.0
         return
     if scatter:
-        beta[i, 0] *= media[m, 3] * tr0 / pdf
-        beta[i, 1] *= media[m, 4] * tr1 / pdf
-        beta[i, 2] *= media[m, 5] * tr2 / pdf
+        beta[i, 0] *= media[m, MED_SIGMA_S] * tr0 / pdf
+        beta[i, 1] *= media[m, MED_SIGMA_S + 1] * tr1 / pdf
+        beta[i, 2] *= media[m, MED_SIGMA_S + 2] * tr2 / pdf
     else:
         beta[i, 0] *= tr0 / pdf
         beta[i, 1] *= tr1 / pdf
@@ -227,7 +230,7 @@ def _nee(i, px, py, pz, kind, nx, ny, nz, dx, dy, dz, phase_kind, g, albedo, med
     sh_C[i, 2] = beta[i, 2] * fb * Lb * scale
     sh_pos[i, 0], sh_pos[i, 1], sh_pos[i, 2] = ox, oy, oz
     sh_dir[i, 0], sh_dir[i, 1], sh_dir[i, 2] = wx, wy, wz
-    sh_tmax[i] = dist * (1.0 - 1e-7) - 2.0 * eps if dist < INF else INF
+    sh_tmax[i] = shadow_ray_length(dist, eps)
     sh_med[i] = medium
     sh_light[i] = li
     sh_active[i] = True
@@ -271,12 +274,12 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
                 if depth[i] > misc[M_MAXDEPTH] or nscat[i] > misc[M_MAXORDER]:
                     status[i] = DEAD
                     return
-                kind, g = int(media[m, 6]), media[m, 7]
+                kind, g = int(media[m, MED_PHASE]), media[m, MED_G]
                 # MIS applies whenever the NEE strategy is on here, whether or not this sample contributed.
-                nee_on = media[m, 8] == 0.0 and nl > 0
+                nee_on = media[m, MED_SEALED] == 0.0 and nl > 0
                 did_nee = False
                 if nee_on:
-                    did_nee = _nee(i, px, py, pz, 0, 0.0, 0.0, 0.0, dx, dy, dz, kind, g, media[m, 0:3], m,
+                    did_nee = _nee(i, px, py, pz, 0, 0.0, 0.0, 0.0, dx, dy, dz, kind, g, media[m, MED_SIGMA_A:MED_SIGMA_A + 3], m,
                                    S, misc, st, sh)
                 wx, wy, wz, pdf = phase_sample(kind, g, dx, dy, dz, rand(rng, i), rand(rng, i), rand(rng, i))
                 prev_pos[i, 0], prev_pos[i, 1], prev_pos[i, 2] = px, py, pz
@@ -296,11 +299,11 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
         # ---------------- escape to the environment
         if tsurf == INF:
             for li in range(nl):
-                if lights[li, 0] == ENVIRONMENT and _order_ok(misc, nscat[i]):
+                if lights[li, LIGHT_TYPE] == ENVIRONMENT and _order_ok(misc, nscat[i]):
                     w = 1.0
                     if prev_pdf[i] > 0.0:
                         w = power_heuristic(prev_pdf[i], light_pdf(lights, li, 0.0, 0.0, 0.0, dx, dy, dz, INF) / nl)
-                    _add_emission(L, beta, i, lights[li, 1], lights[li, 2], lights[li, 3], w)
+                    _add_emission(L, beta, i, lights[li, LIGHT_RGB], lights[li, LIGHT_RGB + 1], lights[li, LIGHT_RGB + 2], w)
             status[i] = DEAD
             return
         hx, hy, hz = ox + tsurf * dx, oy + tsurf * dy, oz + tsurf * dz
@@ -315,7 +318,8 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
                         dist = math.sqrt(qx * qx + qy * qy + qz * qz)
                         w = power_heuristic(prev_pdf[i], light_pdf(lights, aidx, prev_pos[i, 0], prev_pos[i, 1],
                                                                    prev_pos[i, 2], dx, dy, dz, dist) / nl)
-                    _add_emission(L, beta, i, lights[aidx, 1], lights[aidx, 2], lights[aidx, 3], w * e)
+                    _add_emission(L, beta, i, lights[aidx, LIGHT_RGB], lights[aidx, LIGHT_RGB + 1],
+                                  lights[aidx, LIGHT_RGB + 2], w * e)
             status[i] = DEAD
             return
         # ---------------- a surface: geometric normal (exterior side) and shading normal
@@ -326,22 +330,16 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
             gx, gy, gz = gx * inv, gy * inv, gz * inv
             nx, ny, nz = mesh_shading_normal(tri_normals, prim, float(hit_u[i]), float(hit_v[i]))
         else:
-            s = int(spheres[aidx, 4])
-            r = spheres[aidx, 3]
-            gx, gy, gz = (hx - spheres[aidx, 0]) / r, (hy - spheres[aidx, 1]) / r, (hz - spheres[aidx, 2]) / r
+            s = int(spheres[aidx, SPH_SURFACE])
+            r = spheres[aidx, SPH_RADIUS]
+            gx, gy, gz = (hx - spheres[aidx, SPH_CENTER]) / r, (hy - spheres[aidx, SPH_CENTER + 1]) / r, (hz - spheres[aidx, SPH_CENTER + 2]) / r
             inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
             gx, gy, gz = gx * inv, gy * inv, gz * inv
             nx, ny, nz = gx, gy, gz
-        stype = surfaces[s, 0]
-        entering = dx * gx + dy * gy + dz * gz < 0.0
-        # normals on the incident side
-        sgn = 1.0 if entering else -1.0
-        fgx, fgy, fgz = sgn * gx, sgn * gy, sgn * gz
-        fnx, fny, fnz = sgn * nx, sgn * ny, sgn * nz
-        if fnx * fgx + fny * fgy + fnz * fgz <= 0.0:  # degenerate shading normal
-            fnx, fny, fnz = fgx, fgy, fgz
+        stype = surfaces[s, SURF_TYPE]
+        entering, fgx, fgy, fgz, fnx, fny, fnz = incident_side(dx, dy, dz, gx, gy, gz, nx, ny, nz)
         if stype == NULL:
-            medium[i] = int(surfaces[s, 1]) if entering else int(surfaces[s, 2])
+            medium[i] = medium_beyond(surfaces, s, entering)
             pos[i, 0], pos[i, 1], pos[i, 2] = hx - eps * fgx, hy - eps * fgy, hz - eps * fgz
             if medium[i] >= 0:
                 tpend[i] = _sample_flight(media, medium[i], beta, i, rng)
@@ -353,12 +351,8 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
         did_nee = False
         nee_on = False
         if stype == DIELECTRIC:
-            eta_i = surfaces[s, 4] if entering else surfaces[s, 3]
-            eta_t = surfaces[s, 3] if entering else surfaces[s, 4]
-            cos_i = -(dx * fnx + dy * fny + dz * fnz)
-            if cos_i < 1e-9:
-                cos_i = 1e-9
-            F, cos_t = fresnel_dielectric(cos_i, eta_t / eta_i)
+            eta_i, eta_t = indices(surfaces, s, entering)
+            cos_i, F, cos_t = dielectric_fresnel(eta_i, eta_t, dx, dy, dz, fnx, fny, fnz)
             if rand(rng, i) < F:
                 wx, wy, wz = reflect(dx, dy, dz, fnx, fny, fnz)
             else:
@@ -371,27 +365,27 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
             prev_pdf[i] = 0.0
         elif stype == MIRROR:
             wx, wy, wz = reflect(dx, dy, dz, fnx, fny, fnz)
-            beta[i, 0] *= surfaces[s, 5]
-            beta[i, 1] *= surfaces[s, 6]
-            beta[i, 2] *= surfaces[s, 7]
+            beta[i, 0] *= surfaces[s, SURF_ALBEDO]
+            beta[i, 1] *= surfaces[s, SURF_ALBEDO + 1]
+            beta[i, 2] *= surfaces[s, SURF_ALBEDO + 2]
             prev_pdf[i] = 0.0
         else:  # DIFFUSE
             cur = medium[i]
-            nee_on = (cur < 0 or media[cur, 8] == 0.0) and nl > 0
+            nee_on = (cur < 0 or media[cur, MED_SEALED] == 0.0) and nl > 0
             if nee_on:
-                did_nee = _nee(i, hx, hy, hz, 1, fnx, fny, fnz, dx, dy, dz, 0, 0.0, surfaces[s, 5:8], cur,
+                did_nee = _nee(i, hx, hy, hz, 1, fnx, fny, fnz, dx, dy, dz, 0, 0.0, surfaces[s, SURF_ALBEDO:SURF_ALBEDO + 3], cur,
                                S, misc, st, sh)
             wx, wy, wz = cosine_hemisphere(rand(rng, i), rand(rng, i), fnx, fny, fnz)
             c = wx * fnx + wy * fny + wz * fnz
-            beta[i, 0] *= surfaces[s, 5]
-            beta[i, 1] *= surfaces[s, 6]
-            beta[i, 2] *= surfaces[s, 7]
+            beta[i, 0] *= surfaces[s, SURF_ALBEDO]
+            beta[i, 1] *= surfaces[s, SURF_ALBEDO + 1]
+            beta[i, 2] *= surfaces[s, SURF_ALBEDO + 2]
             prev_pdf[i] = c / math.pi if nee_on else 0.0
             prev_pos[i, 0], prev_pos[i, 1], prev_pos[i, 2] = hx, hy, hz
         # side of the geometric surface the new direction leaves on decides the medium
         out_ext = wx * gx + wy * gy + wz * gz > 0.0
         if stype == DIELECTRIC:
-            medium[i] = int(surfaces[s, 2]) if out_ext else int(surfaces[s, 1])
+            medium[i] = medium_beyond(surfaces, s, not out_ext)
         elif (out_ext != entering):  # opaque surface: a direction below the surface ends the path
             status[i] = DEAD
             return
@@ -456,7 +450,7 @@ def _shadow_advance(i, k, fresh_flags, S, misc, sh, hits, L):
         if t >= tmax:
             if m >= 0 and tmax < INF:
                 for c in range(3):
-                    sh_C[i, c] *= math.exp(-(media[m, c] + media[m, 3 + c]) * tmax)
+                    sh_C[i, c] *= math.exp(-(media[m, MED_SIGMA_A + c] + media[m, MED_SIGMA_S + c]) * tmax)
             elif m >= 0:
                 sh_C[i, 0] = sh_C[i, 1] = sh_C[i, 2] = 0.0
             L[i, 0] += sh_C[i, 0]
@@ -468,21 +462,21 @@ def _shadow_advance(i, k, fresh_flags, S, misc, sh, hits, L):
             s = tri_surface[prim]
             gx, gy, gz = float(hit_ng[i, 0]), float(hit_ng[i, 1]), float(hit_ng[i, 2])
         elif akind == 1:
-            s = int(spheres[aidx, 4])
+            s = int(spheres[aidx, SPH_SURFACE])
             hx, hy, hz = ox + t * dx, oy + t * dy, oz + t * dz
-            gx, gy, gz = hx - spheres[aidx, 0], hy - spheres[aidx, 1], hz - spheres[aidx, 2]
+            gx, gy, gz = hx - spheres[aidx, SPH_CENTER], hy - spheres[aidx, SPH_CENTER + 1], hz - spheres[aidx, SPH_CENTER + 2]
         else:
             s = -1
-        if s < 0 or surfaces[s, 0] != NULL:
+        if s < 0 or surfaces[s, SURF_TYPE] != NULL:
             sh_active[i] = False  # blocked
             break
         if m >= 0:
             for c in range(3):
-                sh_C[i, c] *= math.exp(-(media[m, c] + media[m, 3 + c]) * t)
+                sh_C[i, c] *= math.exp(-(media[m, MED_SIGMA_A + c] + media[m, MED_SIGMA_S + c]) * t)
         inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
         gx, gy, gz = gx * inv, gy * inv, gz * inv
         entering = dx * gx + dy * gy + dz * gz < 0.0
-        sh_med[i] = int(surfaces[s, 1]) if entering else int(surfaces[s, 2])
+        sh_med[i] = medium_beyond(surfaces, s, entering)
         sgn = -1.0 if entering else 1.0
         sh_pos[i, 0] = ox + t * dx + sgn * eps * gx
         sh_pos[i, 1] = oy + t * dy + sgn * eps * gy
@@ -601,7 +595,7 @@ def render_volpath(bs: BuiltScene, spp: int, seed: int, max_depth: int, rr_depth
 
     progress(done_paths, total_paths) is called after every batch.
     """
-    W, H = int(bs.camera[12]), int(bs.camera[13])
+    W, H = bs.resolution
     npix = W * H
     misc = _misc(bs, max_depth, rr_depth, orders)
     S = scene_tuple(bs)

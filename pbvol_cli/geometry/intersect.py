@@ -1,6 +1,6 @@
 """Per-ray geometry helpers for the kernels: analytic spheres and lights, mesh shading normals.
 
-Triangles are intersected by Embree in batches (pbvol_cli.geometry.raycast); whatever Embree returns is
+Triangles are intersected by Embree in batches (geometry/raycast.py); whatever Embree returns is
 merged here with the analytic primitives, which numba intersects itself (exactly: a sphere shape refracts
 like a sphere).
 """
@@ -10,7 +10,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from pbvol_cli.physics.lights import _sphere_hit, intersect_lights
+from pbvol_cli.geometry.scene_build import SPH_CENTER, SPH_RADIUS, SPH_SURFACE
+from pbvol_cli.physics.lights import LIGHT_P0, LIGHT_RADIUS, LIGHT_TYPE, QUAD, SPHERE, intersect_lights, quad_normal, sphere_hit
 
 INF = np.inf
 
@@ -20,7 +21,8 @@ def closest_sphere(spheres, ox, oy, oz, dx, dy, dz, tmax):
     """Closest analytic sphere hit before tmax: (t, sphere index) or (inf, -1)."""
     best, idx = tmax, -1
     for k in range(spheres.shape[0]):
-        t, _ = _sphere_hit(ox, oy, oz, dx, dy, dz, spheres[k, 0], spheres[k, 1], spheres[k, 2], spheres[k, 3], 0.0)
+        t, _ = sphere_hit(ox, oy, oz, dx, dy, dz, spheres[k, SPH_CENTER], spheres[k, SPH_CENTER + 1],
+                          spheres[k, SPH_CENTER + 2], spheres[k, SPH_RADIUS], 0.0)
         if t < best:
             best, idx = t, k
     return (best, idx) if idx >= 0 else (INF, -1)
@@ -31,18 +33,16 @@ def analytic_distance_bound(spheres, lights, x, y, z):
     """Lower bound on the distance from (x, y, z) to every analytic sphere and area light."""
     b = INF
     for k in range(spheres.shape[0]):
-        cx, cy, cz = x - spheres[k, 0], y - spheres[k, 1], z - spheres[k, 2]
-        b = min(b, abs(math.sqrt(cx * cx + cy * cy + cz * cz) - spheres[k, 3]))
+        cx, cy, cz = x - spheres[k, SPH_CENTER], y - spheres[k, SPH_CENTER + 1], z - spheres[k, SPH_CENTER + 2]
+        b = min(b, abs(math.sqrt(cx * cx + cy * cy + cz * cz) - spheres[k, SPH_RADIUS]))
     for k in range(lights.shape[0]):
-        if lights[k, 0] == 2.0:  # sphere light
-            cx, cy, cz = x - lights[k, 4], y - lights[k, 5], z - lights[k, 6]
-            b = min(b, abs(math.sqrt(cx * cx + cy * cy + cz * cz) - lights[k, 13]))
-        elif lights[k, 0] == 3.0:  # quad light: distance to its plane
-            e1x, e1y, e1z = lights[k, 7], lights[k, 8], lights[k, 9]
-            e2x, e2y, e2z = lights[k, 10], lights[k, 11], lights[k, 12]
-            nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-            inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
-            b = min(b, abs((x - lights[k, 4]) * nx + (y - lights[k, 5]) * ny + (z - lights[k, 6]) * nz) * inv)
+        if lights[k, LIGHT_TYPE] == SPHERE:
+            cx, cy, cz = x - lights[k, LIGHT_P0], y - lights[k, LIGHT_P0 + 1], z - lights[k, LIGHT_P0 + 2]
+            b = min(b, abs(math.sqrt(cx * cx + cy * cy + cz * cz) - lights[k, LIGHT_RADIUS]))
+        elif lights[k, LIGHT_TYPE] == QUAD:  # distance to its plane
+            nx, ny, nz = quad_normal(lights, k)
+            b = min(b, abs((x - lights[k, LIGHT_P0]) * nx + (y - lights[k, LIGHT_P0 + 1]) * ny
+                           + (z - lights[k, LIGHT_P0 + 2]) * nz))
     return b
 
 
@@ -77,9 +77,9 @@ def _merge_hits(spheres, tri_surface, tri_normals, o, d, t_mesh, prim, u, v, ng_
         ts, ks = closest_sphere(spheres, o[k, 0], o[k, 1], o[k, 2], d[k, 0], d[k, 1], d[k, 2], t_mesh[k])
         if ks >= 0:
             t_out[k] = ts
-            surf_out[k] = int(spheres[ks, 4])
+            surf_out[k] = int(spheres[ks, SPH_SURFACE])
             for c in range(3):
-                ng_out[k, c] = (o[k, c] + ts * d[k, c] - spheres[ks, c]) / spheres[ks, 3]
+                ng_out[k, c] = (o[k, c] + ts * d[k, c] - spheres[ks, SPH_CENTER + c]) / spheres[ks, SPH_RADIUS]
                 ns_out[k, c] = ng_out[k, c]
         elif prim[k] >= 0:
             t_out[k] = t_mesh[k]
