@@ -25,6 +25,7 @@ from pydantic import (
     ConfigDict,
     Field,
     ValidationError,
+    WithJsonSchema,
     field_validator,
     model_validator,
 )
@@ -43,7 +44,14 @@ def _rgb(value: Any) -> Any:
     return value
 
 
-RGB = Annotated[tuple[float, float, float], BeforeValidator(_rgb)]
+def _rgb_schema(**bounds) -> WithJsonSchema:
+    """The JSON schema of a colour field: one number (grey) or three (RGB), each within bounds."""
+    number = {"type": "number", **bounds}
+    return WithJsonSchema({"anyOf": [number, {"type": "array", "items": number, "minItems": 3, "maxItems": 3}],
+                           "description": "one number (grey: the same for R, G and B) or [R, G, B]"})
+
+
+RGB = Annotated[tuple[float, float, float], BeforeValidator(_rgb), _rgb_schema()]
 Vec3 = tuple[float, float, float]
 
 
@@ -72,10 +80,10 @@ def _eta(v):
 
 
 # Constrained types, one place per rule.
-Albedo = Annotated[RGB, AfterValidator(_albedo)]
-Lengths3 = Annotated[RGB, AfterValidator(_positive_lengths)]
-Coefficients = Annotated[RGB, AfterValidator(_non_negative)]
-Eta = Annotated[float, AfterValidator(_eta)]
+Albedo = Annotated[RGB, AfterValidator(_albedo), _rgb_schema(minimum=0, maximum=1)]
+Lengths3 = Annotated[RGB, AfterValidator(_positive_lengths), _rgb_schema(exclusiveMinimum=0)]
+Coefficients = Annotated[RGB, AfterValidator(_non_negative), _rgb_schema(minimum=0)]
+Eta = Annotated[float, AfterValidator(_eta), WithJsonSchema({"type": "number", "exclusiveMinimum": 0})]
 
 
 def _finite(v: tuple[float, ...], what: str) -> tuple[float, ...]:
@@ -92,21 +100,33 @@ class Strict(BaseModel):
 
 
 class Material(Strict):
-    """A homogeneous medium. See the module docstring for the accepted parameterisations."""
+    """A homogeneous participating medium. Give exactly one pair of coefficients, per RGB channel:
+    (albedo, mean_free_path), (sigma_a, sigma_s), or (sigma_s_reduced, sigma_a) as in Jensen et al. 2001."""
 
-    name: str | None = None
-    source: str | None = None
-    length_unit: Literal["scene", "mm", "cm", "m", "um", "in"] = "scene"
-    albedo: Albedo | None = None
-    mean_free_path: Lengths3 | None = None
-    sigma_a: Coefficients | None = None
-    sigma_s: Coefficients | None = None
-    sigma_s_reduced: Coefficients | None = None
-    g: float = 0.0
-    phase: Literal["isotropic", "hg", "schlick", "rayleigh", "mie_hazy", "mie_murky"] = "hg"
-    eta: Eta = 1.0
-    scale: float = 1.0
-    diffuse_reflectance: Albedo | None = None  # informational (Jensen et al. 2001 table)
+    name: str | None = Field(None, description="a label for messages and metadata")
+    source: str | None = Field(None, description="where the numbers come from (free text)")
+    length_unit: Literal["scene", "mm", "cm", "m", "um", "in"] = Field(
+        "scene", description="the length the coefficients are per: 'scene' takes them as they are; a physical unit "
+        "converts them to the scene's `unit`")
+    albedo: Albedo | None = Field(None, description="single-scattering albedo sigma_s / sigma_t, in [0, 1]; "
+                                  "with mean_free_path")
+    mean_free_path: Lengths3 | None = Field(None, description="1 / sigma_t, in length_unit; with albedo")
+    sigma_a: Coefficients | None = Field(None, description="absorption coefficient, 1/length_unit; with sigma_s "
+                                         "or sigma_s_reduced")
+    sigma_s: Coefficients | None = Field(None, description="scattering coefficient, 1/length_unit; with sigma_a")
+    sigma_s_reduced: Coefficients | None = Field(None, description="reduced scattering coefficient (1 - g) sigma_s, "
+                                                 "1/length_unit; with sigma_a (sigma_s = sigma_s_reduced / (1 - g))")
+    g: float = Field(0.0, description="mean cosine of the phase function, -1 < g < 1 (0: isotropic)",
+                     json_schema_extra={"exclusiveMinimum": -1, "exclusiveMaximum": 1})
+    phase: Literal["isotropic", "hg", "schlick", "rayleigh", "mie_hazy", "mie_murky"] = Field(
+        "hg", description="phase function: Henyey-Greenstein, Schlick's approximation of it (both with g), "
+        "isotropic, Rayleigh, or the hazy / murky Mie lobes of Nishita et al.")
+    eta: Eta = Field(1.0, description="refractive index of the medium, the default index of a dielectric shape "
+                     "holding it")
+    scale: float = Field(1.0, description="density: multiplies sigma_a and sigma_s",
+                         json_schema_extra={"exclusiveMinimum": 0})
+    diffuse_reflectance: Albedo | None = Field(None, description="informational only (Jensen et al. 2001's "
+                                               "measured R_d); not used by the renderer")
 
     @field_validator("g")
     @classmethod
@@ -185,11 +205,15 @@ def length_conversion(material_unit: str, scene_unit: str) -> float:
 
 
 class Camera(Strict):
-    position: Vec3
-    look_at: Vec3
-    up: Vec3 = (0.0, 1.0, 0.0)
-    fov: float = Field(40.0, description="full vertical field of view, degrees")
-    resolution: tuple[int, int] = (256, 256)
+    """A pinhole camera."""
+
+    position: Vec3 = Field(description="the eye, scene units")
+    look_at: Vec3 = Field(description="the point at the image's centre, scene units")
+    up: Vec3 = Field((0.0, 1.0, 0.0), description="the direction that is up in the image (not parallel to the "
+                     "viewing direction)")
+    fov: float = Field(40.0, description="full vertical field of view, degrees",
+                       json_schema_extra={"exclusiveMinimum": 0, "exclusiveMaximum": 180})
+    resolution: tuple[int, int] = Field((256, 256), description="[width, height] in pixels, 1 to 16384 each")
 
     @field_validator("fov")
     @classmethod
@@ -217,38 +241,45 @@ class Camera(Strict):
 
 
 class VolpathSettings(Strict):
+    """The reference path tracer (`--method volpath`)."""
+
     rr_depth: int = Field(8, ge=0, description="bounce count from which Russian roulette applies")
-    batch_paths: int = Field(1 << 19, ge=1024, description="paths traced per wavefront batch")
+    batch_paths: int = Field(1 << 19, ge=1024, description="paths traced per wavefront batch (memory vs. overhead)")
 
 
 class LutSettings(Strict):
     """The multiple-scattering table (precompute-lut). Lengths in mean free paths."""
 
-    particles: int | None = Field(None, ge=1000, description="default: as many as the collision budget allows")
-    collision_budget: int = Field(80_000_000, ge=100_000)
-    seed: int = Field(0, ge=0)
-    extent: float = Field(40.0, gt=0, description="table half-size, mean free paths")
-    sh_order: int = Field(12, ge=2, le=24)
-    merge_tol: float = Field(0.05, ge=0, description="quadtree merge tolerance on lobe shapes")
+    particles: int | None = Field(None, ge=1000, description="particles simulated per table (default: as many as "
+                                  "the collision budget allows)")
+    collision_budget: int = Field(80_000_000, ge=100_000, description="collisions simulated per table when "
+                                  "particles is not given")
+    seed: int = Field(0, ge=0, description="the simulation's random seed")
+    extent: float = Field(40.0, gt=0, description="table half-size, mean free paths (light beyond it is lost)")
+    sh_order: int = Field(12, ge=2, le=24, description="spherical-harmonics order of the stored lobes")
+    merge_tol: float = Field(0.05, ge=0, description="relative difference of lobe shapes below which neighbouring "
+                             "cells share one (quadtree merge)")
 
 
 
 class PblSettings(Strict):
     """The point-based method: light samples and their use along camera rays (defaults: what the benchmark uses)."""
 
-    surface_samples: int = Field(20000, ge=16, description="blue-noise samples on each outer layer (about)")
+    surface_samples: int = Field(20000, ge=16, description="light surface samples (blue noise) on the outer layers "
+                                 "of the medium-holding shapes, about")
     segments_per_beam: int = Field(16, ge=1, description="volume samples per beam and internal reflection")
-    max_internal_reflections: int = Field(8, ge=0)
+    max_internal_reflections: int = Field(8, ge=0, description="internal reflections a beam is followed through")
     max_layers: int = Field(8, ge=1, description="transparent interfaces a beam may cross to reach the medium")
-    beam_width: float = Field(2.0, ge=0.5, description="single scattering's kernel radius / the beam's radius "
-                              "(wider: less noise from the light samples, more blur, and a deficit near the "
-                              "boundary: 1% at 2, with the boundary continuation)")
+    beam_width: float = Field(2.0, ge=0.5, description="single scattering's kernel radius over the beam's radius "
+                              "(wider: less noise from the light samples, more blur)")
     kmax: int = Field(4, ge=1, description="points per camera-ray segment in a medium for single scattering (eq. 9)")
     kmax_scattered: int = Field(1, ge=1, description="points per segment for double and multiple (smooth along rays)")
     cut_size: int = Field(8, ge=0, description="octree refinements per point for double and multiple scattering "
                           "(stochastic light cut: more = less noise, more time)")
-    clamp: float = Field(0.02, ge=0, description="minimum distance in the 1/r^2 of double scattering, scene units")
-    max_split_depth: int = Field(8, ge=1, description="specular interfaces a camera path may split at")
+    clamp: float = Field(0.02, ge=0, description="smallest radius a source's 1/r^2 is averaged over (double "
+                         "scattering), scene units")
+    max_split_depth: int = Field(8, ge=1, description="surfaces a camera path meets before it ends (it splits in "
+                                 "two at every smooth interface)")
     diffuse_bounces: int = Field(3, ge=0, description="diffuse bounces of camera paths (indirect light)")
     kmax_diffuse: int = Field(1, ge=1, description="random points per medium segment after a diffuse bounce")
     light_sets: int = Field(0, ge=0, description="independent light-sample sets the spp passes cycle through "
@@ -256,41 +287,47 @@ class PblSettings(Strict):
     roulette: float = Field(0.1, ge=0, description="camera branches of weight below this evaluate the medium "
                             "with probability weight / roulette (0: always)")
     surface_paths: int = Field(0, ge=0, le=4096, description="camera paths per pixel and pass: the surfaces (path "
-                               "traced, cheap) take them all, the medium one of them chosen at random (weight "
-                               "surface_paths, unbiased); 0: auto, 8 for the first two passes, then per pass "
-                               "from the surfaces' and the medium's measured variances (render/pbl.py "
-                               "auto_surface_paths)")
+                               "traced, cheap) take them all, the medium one of them chosen at random (weighted: "
+                               "unbiased); 0: auto, 8 for the first two passes, then per pass from the surfaces' and "
+                               "the medium's measured noise")
     bounce_samples: int = Field(1000, ge=16, description="boundary points gathering the scattered light that the "
                                 "medium's boundary reflects back (sec. 3.10, the bounced layer)")
     bounce_generations: int = Field(3, ge=0, description="reflections of scattered light followed (0: none)")
-    components: tuple[Literal["single", "double", "multiple", "bounced"], ...] = ("single", "double", "multiple",
-                                                                                 "bounced")
+    components: tuple[Literal["single", "double", "multiple", "bounced"], ...] = Field(
+        ("single", "double", "multiple", "bounced"), description="the medium's terms rendered (each is a layer of the "
+        "EXR; the command line's --components overrides)")
 
 
 class RenderSettings(Strict):
-    spp: int = Field(64, ge=1)
+    """How to render (the command line's options override spp, seed, threads, time_limit and max_depth)."""
+
+    spp: int = Field(64, ge=1, description="samples (volpath) or passes (pbl) per pixel")
     max_depth: int = Field(1000, ge=1, description="maximum number of scattering events and surface bounces")
-    seed: int = Field(0, ge=0)
-    threads: int | None = Field(None, ge=1)
-    time_limit: float | None = Field(None, gt=0, description="seconds; stops after the batch that passes it")
-    volpath: VolpathSettings = VolpathSettings()
-    lut: LutSettings = LutSettings()
-    pbl: PblSettings = PblSettings()
+    seed: int = Field(0, ge=0, description="random seed: the same seed and settings give the same image")
+    threads: int | None = Field(None, ge=1, description="worker threads (default: all cores)")
+    time_limit: float | None = Field(None, gt=0, description="seconds; stops after the pass that passes it")
+    volpath: VolpathSettings = Field(VolpathSettings(), description="[render.volpath]")
+    lut: LutSettings = Field(LutSettings(), description="[render.lut]")
+    pbl: PblSettings = Field(PblSettings(), description="[render.pbl]")
 
 
 # --------------------------------------------------------------------------- lights
 
 
 class PointLight(Strict):
+    """A point light: a delta light, so volpath cannot reach it through a refracting boundary (pbl can)."""
+
     type: Literal["point"]
-    position: Vec3
-    intensity: RGB  # W/sr
+    position: Vec3 = Field(description="scene units")
+    intensity: RGB = Field(description="radiant intensity, W/sr")
 
 
 class DirectionalLight(Strict):
+    """Parallel light from infinitely far: a delta light, like the point light."""
+
     type: Literal["directional"]
-    direction: Vec3  # direction the light travels
-    irradiance: RGB  # W/m^2 on a surface facing it
+    direction: Vec3 = Field(description="the direction the light travels (need not be unit length)")
+    irradiance: RGB = Field(description="irradiance on a surface facing the light, W per scene unit^2")
 
     @field_validator("direction")
     @classmethod
@@ -301,11 +338,13 @@ class DirectionalLight(Strict):
 
 
 class SphereLight(Strict):
+    """A sphere emitting uniformly outward from its surface. Give radiance or power, not both."""
+
     type: Literal["sphere"]
-    center: Vec3
-    radius: float = Field(gt=0)
-    radiance: RGB | None = None
-    power: RGB | None = None  # total emitted flux, W
+    center: Vec3 = Field(description="scene units")
+    radius: float = Field(gt=0, description="scene units")
+    radiance: RGB | None = Field(None, description="emitted radiance, W sr^-1 per scene unit^2")
+    power: RGB | None = Field(None, description="total emitted flux, W (radiance = power / (pi x 4 pi radius^2))")
 
     @model_validator(mode="after")
     def _one(self):
@@ -320,15 +359,16 @@ class SphereLight(Strict):
 
 
 class QuadLight(Strict):
-    """A parallelogram ``corner + s*edge1 + t*edge2``, emitting on the side of edge1 x edge2."""
+    """A parallelogram corner + s edge1 + t edge2 (s, t in [0, 1]) emitting on the side edge1 x edge2 points to
+    (both sides with two_sided). Give radiance or power, not both."""
 
     type: Literal["quad"]
-    corner: Vec3
-    edge1: Vec3
-    edge2: Vec3
-    radiance: RGB | None = None
-    power: RGB | None = None
-    two_sided: bool = False
+    corner: Vec3 = Field(description="scene units")
+    edge1: Vec3 = Field(description="scene units")
+    edge2: Vec3 = Field(description="scene units; edge1 x edge2 is the emitting side's normal")
+    radiance: RGB | None = Field(None, description="emitted radiance, W sr^-1 per scene unit^2")
+    power: RGB | None = Field(None, description="total emitted flux, W (radiance = power / (pi x area x sides))")
+    two_sided: bool = Field(False, description="emit on both sides")
 
     @model_validator(mode="after")
     def _one(self):
@@ -349,8 +389,10 @@ class QuadLight(Strict):
 
 
 class EnvironmentLight(Strict):
+    """Constant radiance arriving from every direction (a uniform sky)."""
+
     type: Literal["environment"]
-    radiance: RGB
+    radiance: RGB = Field(description="radiance, W sr^-1 per scene unit^2")
 
 
 Light = Annotated[
@@ -367,9 +409,10 @@ MediumRef = Union[str, Material]
 class Transform(Strict):
     """Applied as scale, then rotate (Euler angles in degrees about x, then y, then z), then translate."""
 
-    translate: Vec3 = (0.0, 0.0, 0.0)
-    rotate: Vec3 = (0.0, 0.0, 0.0)
-    scale: RGB = (1.0, 1.0, 1.0)
+    translate: Vec3 = Field((0.0, 0.0, 0.0), description="scene units")
+    rotate: Vec3 = Field((0.0, 0.0, 0.0), description="Euler angles about x, y, z, degrees")
+    scale: RGB = Field((1.0, 1.0, 1.0), description="one factor or one per axis [x, y, z], positive (a sphere "
+                       "takes one)")
 
     @field_validator("scale")
     @classmethod
@@ -392,58 +435,68 @@ class Transform(Strict):
 
 
 class ShapeBase(Strict):
-    name: str | None = None
-    interface: Literal["diffuse", "dielectric", "mirror", "null"] = "diffuse"
-    albedo: Albedo = (0.8, 0.8, 0.8)  # diffuse albedo, or mirror reflectance
-    eta: Eta | None = None  # interior index of a dielectric; default: the medium's eta, else 1.5
-    medium: MediumRef | None = None  # interior medium
-    exterior_medium: MediumRef | None = None
-    exterior_eta: Eta = 1.0
-    transform: Transform | None = None
+    """Fields every shape takes. A shape's surface separates its interior from its exterior."""
+
+    name: str | None = Field(None, description="a label for messages")
+    interface: Literal["diffuse", "dielectric", "mirror", "null"] = Field(
+        "diffuse", description="the surface: Lambertian (opaque), smooth dielectric (refracts and reflects by "
+        "Fresnel), mirror, or null (index-matched: light passes unchanged into the medium)")
+    albedo: Albedo = Field((0.8, 0.8, 0.8), description="diffuse albedo, or mirror reflectance")
+    eta: Eta | None = Field(None, description="interior refractive index of a dielectric (default: the medium's "
+                            "eta, else 1.5)")
+    medium: MediumRef | None = Field(None, description="interior medium: a preset name (`pbvol materials`), a "
+                                     "material file relative to the scene, a name in [materials], or an inline "
+                                     "table")
+    exterior_medium: MediumRef | None = Field(None, description="the medium outside (default: vacuum)")
+    exterior_eta: Eta = Field(1.0, description="the refractive index outside")
+    transform: Transform | None = Field(None, description="scale, rotate, then translate the shape")
 
 
 class SphereShape(ShapeBase):
-    """Intersected analytically: refracts like a true sphere."""
+    """A sphere, intersected analytically: refracts like a true sphere."""
 
     type: Literal["sphere"]
-    center: Vec3 = (0.0, 0.0, 0.0)
-    radius: float = Field(1.0, gt=0)
+    center: Vec3 = Field((0.0, 0.0, 0.0), description="scene units")
+    radius: float = Field(1.0, gt=0, description="scene units")
 
 
 class BumpySphereShape(ShapeBase):
     """A sphere displaced radially by smooth noise: r = radius * (1 + amplitude * n(w)), |n| <= 1."""
 
     type: Literal["bumpy_sphere"]
-    center: Vec3 = (0.0, 0.0, 0.0)
-    radius: float = Field(1.0, gt=0)
-    amplitude: float = Field(0.1, ge=0, lt=1)
-    frequency: float = Field(3.0, gt=0)
-    seed: int = Field(0, ge=0)
-    subdivisions: int = Field(6, ge=1, le=8)
+    center: Vec3 = Field((0.0, 0.0, 0.0), description="scene units")
+    radius: float = Field(1.0, gt=0, description="scene units")
+    amplitude: float = Field(0.1, ge=0, lt=1, description="relative height of the bumps")
+    frequency: float = Field(3.0, gt=0, description="bumps' spatial frequency over the sphere")
+    seed: int = Field(0, ge=0, description="the noise's random seed")
+    subdivisions: int = Field(6, ge=1, le=8, description="icosphere subdivisions (20 x 4^n triangles)")
 
 
 class BoxShape(ShapeBase):
+    """An axis-aligned box (use a transform to turn it)."""
+
     type: Literal["box"]
-    center: Vec3 = (0.0, 0.0, 0.0)
-    size: Lengths3 = (1.0, 1.0, 1.0)
+    center: Vec3 = Field((0.0, 0.0, 0.0), description="scene units")
+    size: Lengths3 = Field((1.0, 1.0, 1.0), description="edge lengths [x, y, z] (or one for a cube), scene units")
 
 
 class CylinderShape(ShapeBase):
     """Closed cylinder along +y, its base centred at ``center``."""
 
     type: Literal["cylinder"]
-    center: Vec3 = (0.0, 0.0, 0.0)
-    radius: float = Field(1.0, gt=0)
-    height: float = Field(1.0, gt=0)
-    segments: int = Field(256, ge=8)
+    center: Vec3 = Field((0.0, 0.0, 0.0), description="centre of the base, scene units")
+    radius: float = Field(1.0, gt=0, description="scene units")
+    height: float = Field(1.0, gt=0, description="scene units")
+    segments: int = Field(256, ge=8, description="facets around (smooth normals interpolated)")
 
 
 class QuadShape(ShapeBase):
     """A rectangle in the xz plane centred at ``center``, normal +y (use a transform to turn it)."""
 
     type: Literal["quad"]
-    center: Vec3 = (0.0, 0.0, 0.0)
-    size: Annotated[tuple[float, float], AfterValidator(_positive_lengths)] = (1.0, 1.0)
+    center: Vec3 = Field((0.0, 0.0, 0.0), description="scene units")
+    size: Annotated[tuple[float, float], AfterValidator(_positive_lengths)] = Field(
+        (1.0, 1.0), description="[x, z] side lengths, scene units")
 
 
 class CupShape(ShapeBase):
@@ -455,15 +508,16 @@ class CupShape(ShapeBase):
     """
 
     type: Literal["cup"]
-    center: Vec3 = (0.0, 0.0, 0.0)
-    radius: float = Field(1.0, gt=0, description="outer radius")
-    height: float = Field(2.0, gt=0)
-    wall: float = Field(0.1, gt=0, description="wall thickness")
-    bottom: float = Field(0.2, gt=0, description="bottom thickness")
+    center: Vec3 = Field((0.0, 0.0, 0.0), description="centre of the base, scene units")
+    radius: float = Field(1.0, gt=0, description="outer radius, scene units")
+    height: float = Field(2.0, gt=0, description="scene units")
+    wall: float = Field(0.1, gt=0, description="wall thickness, scene units")
+    bottom: float = Field(0.2, gt=0, description="bottom thickness, scene units")
     fill: float = Field(0.0, ge=0, le=1, description="liquid level as a fraction of the inner height")
-    liquid: MediumRef | None = None
-    liquid_eta: Eta | None = None
-    segments: int = Field(256, ge=8)
+    liquid: MediumRef | None = Field(None, description="the liquid's medium (as `medium`); needed when fill > 0")
+    liquid_eta: Eta | None = Field(None, description="the liquid's refractive index (default: its medium's eta, "
+                                   "else 1.33)")
+    segments: int = Field(256, ge=8, description="facets around (smooth normals interpolated)")
 
     @model_validator(mode="after")
     def _dims(self):
@@ -480,8 +534,9 @@ class MeshShape(ShapeBase):
     """A mesh file read by trimesh (OBJ, PLY, STL, glTF/GLB), relative to the scene file."""
 
     type: Literal["mesh"]
-    file: str
-    smooth: bool = True  # interpolate vertex normals (split at creases sharper than 60 degrees)
+    file: str = Field(description="the mesh file, relative to the scene file; a closed mesh to hold a medium, its "
+                      "normals pointing out")
+    smooth: bool = Field(True, description="interpolate vertex normals (split at creases sharper than 60 degrees)")
 
 
 Shape = Annotated[
@@ -491,12 +546,16 @@ Shape = Annotated[
 
 
 class Scene(Strict):
-    unit: Literal["scene", "mm", "cm", "m", "um", "in"] = "scene"
-    camera: Camera
-    render: RenderSettings = RenderSettings()
-    lights: list[Light] = Field(default_factory=list)
-    shapes: list[Shape] = Field(default_factory=list)
-    materials: dict[str, Material] = Field(default_factory=dict)
+    """A scene file: camera, render settings, lights, shapes and named materials."""
+
+    unit: Literal["scene", "mm", "cm", "m", "um", "in"] = Field(
+        "scene", description="what one scene unit is; materials given per physical length convert to it")
+    camera: Camera = Field(description="[camera]")
+    render: RenderSettings = Field(RenderSettings(), description="[render]")
+    lights: list[Light] = Field(default_factory=list, description="[[lights]], at least one; `type` selects the kind")
+    shapes: list[Shape] = Field(default_factory=list, description="[[shapes]]; `type` selects the kind")
+    materials: dict[str, Material] = Field(default_factory=dict, description="[materials.NAME]: materials the "
+                                           "shapes name")
 
     @model_validator(mode="after")
     def _has_light(self):

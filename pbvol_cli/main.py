@@ -194,6 +194,20 @@ def check(scene: Annotated[Path, typer.Argument(help="scene file (TOML)")]):
         _fail(e)
 
 
+@app.command()
+def schema(
+    kind: Annotated[str, typer.Argument(help="scene or material")] = "scene",
+    markdown: Annotated[bool, typer.Option("--markdown", help="print the field reference (docs/scene-format.md) "
+                                           "instead")] = False,
+):
+    """Print the JSON Schema of a scene file or a material file (every field, with its type, unit and default)."""
+    from pbvol_cli.config_reference import SCHEMAS, json_schema, markdown_reference
+
+    if kind not in SCHEMAS:
+        _fail(PbvolError(f"schema: unknown kind {kind!r}; expected one of: {', '.join(SCHEMAS)}"))
+    typer.echo(markdown_reference() if markdown else json.dumps(json_schema(kind), indent=2))
+
+
 def main():  # pragma: no cover - console entry
     app()
 

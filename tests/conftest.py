@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -9,7 +10,7 @@ import pytest
 import tomli_w
 
 from pbvol_cli import config as C
-from pbvol_cli.geometry.scene_build import build_scene
+from pbvol_cli.geometry.scene_build import CAM_FORWARD, CAM_POS, CAM_RIGHT, CAM_UP, build_scene
 
 
 def write_scene(tmp_path: Path, scene: dict, name: str = "scene.toml") -> Path:
@@ -23,6 +24,21 @@ def camera(res=(16, 16), position=(0.0, 0.0, 4.0), fov=40.0):
             "resolution": list(res)}
 
 
+# the point-based tests' medium: chromatic, anisotropic, in an index-matched sphere under a directional light
+SPHERE_SIGMA_S, SPHERE_SIGMA_A, SPHERE_G = np.array([0.6, 1.0, 2.0]), np.array([0.2, 0.5, 0.1]), 0.5
+SPHERE_LIGHT_DIR = [-1.0, -0.5, -0.7]
+
+
+def medium_sphere_scene(**pbl) -> dict:
+    """A radius-1 index-matched sphere of the SPHERE_* medium under a directional light (irradiance 2), 12x12
+    pixels, 4 spp; pbl: [render.pbl] settings."""
+    return {"camera": camera((12, 12), position=(0, 0, 3.5), fov=40), "render": {"spp": 4, "pbl": pbl},
+            "lights": [{"type": "directional", "direction": SPHERE_LIGHT_DIR, "irradiance": 2.0}],
+            "shapes": [{"type": "sphere", "radius": 1.0, "interface": "null",
+                        "medium": {"sigma_a": SPHERE_SIGMA_A.tolist(), "sigma_s": SPHERE_SIGMA_S.tolist(),
+                                   "g": SPHERE_G}}]}
+
+
 def build(tmp_path: Path, scene: dict):
     p = write_scene(tmp_path, scene)
     return build_scene(C.load_scene(p), p)
@@ -33,6 +49,48 @@ def volpath(built, spp=16, seed=1, orders=None, max_depth=100000, rr_depth=8, ba
 
     img, _, _ = render_volpath(built, spp, seed, max_depth, rr_depth, orders, batch, threads)
     return img
+
+
+def camera_ray(cam, x, y):
+    """The built camera's ray through the image point (x, y) in [-1, 1] (y up): origin, direction (not unit)."""
+    d = cam[CAM_FORWARD:CAM_FORWARD + 3] + x * cam[CAM_RIGHT:CAM_RIGHT + 3] + y * cam[CAM_UP:CAM_UP + 3]
+    return cam[CAM_POS:CAM_POS + 3], d
+
+
+def single_scattering_reference(built, sigma_s, sigma_t, g, light_dir, E, R, k=6):
+    """Order-1 radiance of a null-bounded sphere of radius R at the origin under a directional light,
+    by quadrature along each camera ray (independent of the renderer's sampling)."""
+    cam = built.camera
+    W, H = built.resolution
+    u = -np.asarray(light_dir, float) / np.linalg.norm(light_dir)  # toward the light
+    xs, ws = np.polynomial.legendre.leggauss(48)
+    out = np.zeros((H, W, 3))
+    covered = np.ones((H, W), bool)
+    for py in range(H):
+        for px in range(W):
+            acc = np.zeros(3)
+            for sy in range(k):
+                for sx in range(k):
+                    x = 2 * (px + (sx + 0.5) / k) / W - 1
+                    y = 1 - 2 * (py + (sy + 0.5) / k) / H
+                    o, d = camera_ray(cam, x, y)
+                    d /= np.linalg.norm(d)
+                    b = o @ d
+                    disc = b * b - (o @ o - R * R)
+                    if disc <= 0:
+                        covered[py, px] = False
+                        continue
+                    t0, t1 = -b - math.sqrt(disc), -b + math.sqrt(disc)
+                    t = 0.5 * (t1 - t0) * xs + 0.5 * (t1 + t0)
+                    P = o + t[:, None] * d
+                    pu = P @ u
+                    s = -pu + np.sqrt(np.maximum(pu * pu - (np.sum(P * P, 1) - R * R), 0))
+                    mu = d @ u  # cos between propagation of the light (-u) and toward the camera (-d)
+                    ph = (1 - g * g) / (4 * math.pi * (1 + g * g - 2 * g * mu) ** 1.5)
+                    f = sigma_s[None] * np.exp(-sigma_t[None] * ((t - t0)[:, None] + s[:, None])) * ph * E
+                    acc += 0.5 * (t1 - t0) * (ws[:, None] * f).sum(0)
+            out[py, px] = acc / (k * k)
+    return out, covered
 
 
 @pytest.fixture

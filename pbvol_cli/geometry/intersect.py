@@ -11,7 +11,7 @@ import numpy as np
 from numba import njit, prange
 
 from pbvol_cli.geometry.scene_build import SPH_CENTER, SPH_RADIUS, SPH_SURFACE
-from pbvol_cli.physics.lights import LIGHT_P0, LIGHT_RADIUS, LIGHT_TYPE, QUAD, SPHERE, intersect_lights, quad_normal, sphere_hit
+from pbvol_cli.physics.lights import intersect_lights, sphere_hit
 
 INF = np.inf
 
@@ -26,24 +26,6 @@ def closest_sphere(spheres, ox, oy, oz, dx, dy, dz, tmax):
         if t < best:
             best, idx = t, k
     return (best, idx) if idx >= 0 else (INF, -1)
-
-
-@njit(cache=True)
-def analytic_distance_bound(spheres, lights, x, y, z):
-    """Lower bound on the distance from (x, y, z) to every analytic sphere and area light."""
-    b = INF
-    for k in range(spheres.shape[0]):
-        cx, cy, cz = x - spheres[k, SPH_CENTER], y - spheres[k, SPH_CENTER + 1], z - spheres[k, SPH_CENTER + 2]
-        b = min(b, abs(math.sqrt(cx * cx + cy * cy + cz * cz) - spheres[k, SPH_RADIUS]))
-    for k in range(lights.shape[0]):
-        if lights[k, LIGHT_TYPE] == SPHERE:
-            cx, cy, cz = x - lights[k, LIGHT_P0], y - lights[k, LIGHT_P0 + 1], z - lights[k, LIGHT_P0 + 2]
-            b = min(b, abs(math.sqrt(cx * cx + cy * cy + cz * cz) - lights[k, LIGHT_RADIUS]))
-        elif lights[k, LIGHT_TYPE] == QUAD:  # distance to its plane
-            nx, ny, nz = quad_normal(lights, k)
-            b = min(b, abs((x - lights[k, LIGHT_P0]) * nx + (y - lights[k, LIGHT_P0 + 1]) * ny
-                           + (z - lights[k, LIGHT_P0 + 2]) * nz))
-    return b
 
 
 @njit(cache=True)

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from pbvol_cli import config as C
-from pbvol_cli.geometry.scene_build import MED_SEALED, SPH_SURFACE, SURF_MEDIUM_IN, SURF_MEDIUM_OUT, sphere_bounds
+from pbvol_cli.geometry.scene_build import MED_SEALED, SPH_SURFACE, sphere_bounds
 
 
 def summarize(scene: C.Scene, path: Path) -> str:

@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
-import numpy as np
 
 from pbvol_cli import config as C
 from pbvol_cli.geometry.scene_build import MediumInfo

@@ -3,14 +3,9 @@
 from __future__ import annotations
 
 import hashlib
-import json
-import os
-import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -75,7 +70,7 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
 
     layers, stages = None, {}
     if opts.method == "pbl":
-        img, layers, stats, stages = _render_pbl(scene, built, spp, seed, threads, opts)
+        img, layers, stats, stages = _render_pbl(scene, built, spp, seed, threads, time_limit, opts)
         spp_done = stats["spp"]
     else:
         from pbvol_cli.render.volpath import orders_mask, render_volpath
@@ -123,27 +118,27 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
     return summary
 
 
-def _render_pbl(scene, built, spp, seed, threads, opts):
-    """Light samples and tables from the cache (built when missing), then the camera pass."""
+def _render_pbl(scene, built, spp, seed, threads, time_limit, opts):
+    """Light samples and tables from the cache (built when missing), then the passes (pointbased/passes.py)."""
     from pbvol_cli.pipeline.cache import cache_dir
     from pbvol_cli.pipeline.lut import get_table, table_settings
     from pbvol_cli.pipeline.samples import get_light_samples
     from pbvol_cli.physics.phase import KINDS
-    from pbvol_cli.render.pbl import COMPONENTS, SAMPLE_KEYS, MediumData, render_pbl, returned_samples
+    from pbvol_cli.pointbased.camera_pass import COMPONENTS
+    from pbvol_cli.pointbased.passes import TABLE_COMPONENTS, render_passes
 
     pbl = scene.render.pbl
-    comps = pbl.components
     if opts.components:
         comps = tuple(c.strip() for c in opts.components.split(",") if c.strip())
         bad = [c for c in comps if c not in COMPONENTS]
         if bad:
             raise PbvolError(f"--components: unknown {', '.join(bad)}; expected a comma list of {', '.join(COMPONENTS)}")
+        pbl = pbl.model_copy(update={"components": comps})
     cache = cache_dir(opts.cache_dir)
     stages = {}
     t0 = time.perf_counter()
-    has_media = len(built.medium_info) > 0
     res = None  # surfaces only: no samples
-    if has_media:
+    if built.medium_info:
         prog, update = progress_bar(opts.quiet, "place-samples", "steps")
         with prog:
             res = get_light_samples(built, pbl, seed, cache, threads, progress=update)
@@ -151,97 +146,24 @@ def _render_pbl(scene, built, spp, seed, threads, opts):
     stages["samples_reused"] = float(res.reused) if res else 0.0
     stages["samples_peak_mb"] = peak_memory_mb()
     t0 = time.perf_counter()
-    media_tables = {}
+    tables = {}
+    wanted = any(c in pbl.components for c in TABLE_COMPONENTS)
     for m, info in enumerate(built.medium_info):
-        kind = KINDS[info.material.phase]
         sig_a, sig_s = built.medium_sigmas(m)
         st = sig_a + sig_s
-        tables = []
-        for c in range(3):
-            alpha = float(sig_s[c] / st[c]) if st[c] > 0 else 0.0
-            if ("multiple" in comps or "bounced" in comps) and st[c] > 0:
-                tables.append(get_table(round(alpha, 12), info.material.g, kind, table_settings(scene.render.lut),
-                                        cache).table)
-            else:
-                tables.append(None)
-        filler = next((t for t in tables if t is not None), None)
-        if filler is None:
-            from pbvol_cli.multiple_scattering.table import empty_table
-
-            filler = empty_table()
-        media_tables[m] = [(t or filler).render_args() for t in tables]  # expanded once for every pass
+        tables[m] = [get_table(round(float(sig_s[c] / st[c]), 12), info.material.g, KINDS[info.material.phase],
+                               table_settings(scene.render.lut), cache).table if wanted and st[c] > 0 else None
+                     for c in range(3)]
     stages["tables_s"] = time.perf_counter() - t0
     stages["tables_peak_mb"] = peak_memory_mb()
-    passes_samples_s = [0.0, 0.0]  # light samples of passes > 0, bounced samples
-
-    def media_for_pass(p: int) -> dict:
-        """Pass p's light samples: the cached set for pass 0, a fresh set (seed + p, not cached) for the others,
-        so that the light side's sampling noise (single beams visible as streaks) averages out over passes."""
-        if res is None:
-            return {}
-        samples = res.samples
-        if p > 0 and pbl.light_sets != 1 and (pbl.light_sets == 0 or p < pbl.light_sets):
-            from pbvol_cli.pointbased.light_samples import place_light_samples
-
-            t = time.perf_counter()
-            samples = place_light_samples(built, pbl.surface_samples, pbl.segments_per_beam,
-                                          pbl.max_internal_reflections, pbl.max_layers, seed + p, threads)
-            passes_samples_s[0] += time.perf_counter() - t
-        elif p > 0 and pbl.light_sets > 1:
-            return media_for_pass(p % pbl.light_sets)
-        data = {m: MediumData(samples, m, built.media[m], media_tables[m], pbl.beam_width) for m in media_tables}
-        t = time.perf_counter()
-        bounced = {m: _bounced(m, data[m], seed + p, samples) for m in data}
-        passes_samples_s[1] += time.perf_counter() - t
-        return {m: (data[m], bounced[m]) for m in data}
-
-    def _bounced(m, md, s, samples):
-        """The bounced samples of medium m, or None: scattered light that its boundary reflects back
-        (pointbased/bounced.py) and scattered light that left it and the scene sends back in (the light samples'
-        v_returned part, light_samples._indirect)."""
-        if "bounced" not in comps:
-            return None
-        from pbvol_cli.geometry.raycast import TriangleCaster
-        from pbvol_cli.pointbased.bounced import BOUNCED_KERNEL, bounced_samples
-
-        # (their cross-sections scaled so that the bounced samples' kernel keeps the lights' beams' width)
-        back = returned_samples(samples, m, (pbl.beam_width / BOUNCED_KERNEL) ** 2)
-        b = None
-        if pbl.bounce_generations > 0 and md.count > 0:
-            # the returned light's own reflections on the boundary too (milk glass, mult+bounced / volpath 3+:
-            # 0.917 0.927 0.945 -> 0.962 0.966 0.978)
-            extra = MediumData(back, m, built.media[m], media_tables[m], BOUNCED_KERNEL) if len(back.v_len) else None
-            # the light arriving at the boundary points: one point per gather ray for each estimator (the
-            # reflected light is smooth; the boundary points average it)
-            gather = np.array([1, pbl.cut_size, pbl.clamp, 1.0, 1.0, 1.0, 1, 1])
-            caster = TriangleCaster(built.vertices, built.faces, threads)
-            pool = ThreadPoolExecutor(threads) if threads > 1 else None
-            try:
-                b = bounced_samples(built, caster, pool, threads, m, md,
-                                    lambda smp: MediumData(smp, m, built.media[m], media_tables[m], pbl.beam_width),
-                                    pbl.bounce_samples, pbl.bounce_generations, max(1, pbl.segments_per_beam // 4),
-                                    pbl.max_internal_reflections, gather, s, extra)
-            finally:
-                caster.close()
-                if pool is not None:
-                    pool.shutdown()
-        if b is not None:
-            back = SimpleNamespace(**{k: np.concatenate([getattr(b, k), getattr(back, k)]) for k in SAMPLE_KEYS})
-        if len(back.v_len) == 0:
-            return None
-        return MediumData(back, m, built.media[m], media_tables[m], BOUNCED_KERNEL)
-
     W, H = built.resolution
     prog, update = progress_bar(opts.quiet, f"pbl {W}x{H} {spp} spp", "pixel samples")
-    settings = {"kmax": pbl.kmax, "kmax_scattered": pbl.kmax_scattered, "cut_size": pbl.cut_size, "clamp": pbl.clamp,
-                "components": comps, "max_split_depth": pbl.max_split_depth, "roulette": pbl.roulette,
-                "diffuse_bounces": pbl.diffuse_bounces, "kmax_diffuse": pbl.kmax_diffuse,
-                "surface_paths": pbl.surface_paths}
     with prog:
-        img, layers, stats = render_pbl(built, media_for_pass, spp, seed, settings, threads, update)
+        img, layers, stats, timings = render_passes(built, res.samples if res else None, tables, pbl, seed, spp,
+                                                    threads, update, time_limit)
     stages["render_s"] = stats["time_s"]
-    stages["pass_samples_s"] = passes_samples_s[0]
-    stages["bounced_s"] = passes_samples_s[1]
+    stages["pass_samples_s"] = timings["pass_samples_s"]
+    stages["bounced_s"] = timings["bounced_s"]
     stages["peak_memory_mb"] = peak_memory_mb()
     return img, layers, stats, stages
 

@@ -13,7 +13,7 @@ carried the same way as the light from the lights, as beams:
 3. that light is reflected specularly: a beam from x_j along the mirror direction, of power
    pi F(w . n_j) L_in A_j (cosine sampling: integral of L F cos dw = pi E[L F]), cross-section A_j; one gather
    ray per point is noisy (a volume sample close to the ray), so each point's reflected power is shared among its
-   neighbours within SMOOTHING x their spacing (total kept; the beams' directions stay their own: the reflected
+   neighbours within SHARING_RADIUS x their spacing (total kept; the beams' directions stay their own: the reflected
    light's direction is decorrelated from its power over that distance, as the paper's diffuse value assumes);
 4. the beams are cut into volume samples like the lights' (their own internal reflections followed), and give
    generation g + 1's samples, gathered in turn for the next generation;
@@ -35,8 +35,10 @@ from numba import njit, prange
 from pbvol_cli.geometry.scene_build import DIELECTRIC, SPH_SURFACE, SURF_MEDIUM_IN, SURF_MEDIUM_OUT, SURF_TYPE, BuiltScene
 from pbvol_cli.physics.fresnel import fresnel_dielectric
 from pbvol_cli.physics.sampling import cosine_around, rand, seed_state
-from pbvol_cli.pointbased.light_samples import beam_segments, layer_reflectance, slab_reflectance
-from pbvol_cli.pointbased.surface_samples import poisson_disk
+from pbvol_cli.pointbased.beams import Beams, beam_segments, layer_reflectance, slab_reflectance
+from pbvol_cli.pointbased.gather import eval_segments, segment_planes
+from pbvol_cli.pointbased.surface_samples import SHARING_RADIUS, poisson_disk, share_among_neighbours
+from pbvol_cli.pointbased.volume_samples import SAMPLE_KEYS, medium_params, scattered_share
 from pbvol_cli.geometry.intersect import closest_surface_hits
 from pbvol_cli.render.interfaces import indices
 
@@ -44,7 +46,6 @@ from pbvol_cli.render.interfaces import indices
 # single scattering of the bounced beams: a disc of this many times the boundary point's radius (x1: a few
 # strong beams made single-pixel outliers, bumpy sphere relMSE 0.24; x3: 0.057)
 BOUNCED_KERNEL = 3.0
-SMOOTHING = 2.5  # reflected power is shared among boundary points this many minimum distances apart
 MIN_SHARE = 0.01  # generations stop once one scatters less than this share of the lights' samples' power
 TAIL_RATIO_MAX = 0.9  # generation-to-generation ratio the tail is extrapolated with at most
 
@@ -84,26 +85,6 @@ def _reflected_beams(surfaces, medium, pos, nin, sid, w, L, area, eps, R2, bpos,
 
 
 @njit(parallel=True, cache=True)
-def _share_among_neighbours(pos, val, radius, out):
-    """Each point's value shared equally among the points within `radius` of it (itself included): the sum is
-    kept, a single gather ray's outlier (a near volume sample's 1/r^2) is spread over its neighbours."""
-    n = pos.shape[0]
-    count = np.zeros(n)
-    r2 = radius * radius
-    for i in prange(n):
-        k = 0
-        for j in range(n):
-            if (pos[i, 0] - pos[j, 0]) ** 2 + (pos[i, 1] - pos[j, 1]) ** 2 + (pos[i, 2] - pos[j, 2]) ** 2 <= r2:
-                k += 1
-        count[i] = k
-    for j in prange(n):
-        for i in range(n):
-            if (pos[i, 0] - pos[j, 0]) ** 2 + (pos[i, 1] - pos[j, 1]) ** 2 + (pos[i, 2] - pos[j, 2]) ** 2 <= r2:
-                for c in range(3):
-                    out[j, c] += val[i, c] / count[i]
-
-
-@njit(parallel=True, cache=True)
 def _gather_directions(nin, seed, stream, out, rng):
     """A cosine-weighted direction into the medium from each boundary point (its own random stream, left in rng)."""
     for j in prange(nin.shape[0]):
@@ -117,7 +98,7 @@ def _gather_directions(nin, seed, stream, out, rng):
 ROBUST_QUANTILE = 0.99  # the tail's ratio clips each boundary point's reflected power at this quantile
 
 
-def _robust_total(power: np.ndarray) -> np.ndarray:
+def robust_total(power: np.ndarray) -> np.ndarray:
     """Per channel, the sum of the points' powers (n, 3) clipped at their ROBUST_QUANTILE: rare single-point
     spikes do not move it."""
     live = power[power.max(axis=1) > 0]
@@ -127,18 +108,15 @@ def _robust_total(power: np.ndarray) -> np.ndarray:
     return np.minimum(live, cap[None, :]).sum(axis=0)
 
 
-def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, source, make_data, count: int,
-                    generations: int, segments: int, max_reflections: int, settings: np.ndarray, seed: int,
-                    extra=None):
+def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, source, make_set, count: int,
+                    generations: int, segments: int, max_reflections: int, settings, seed: int, extra=None):
     """Volume samples of the light scattered in `medium` and reflected by its boundary, `generations` times.
 
-    source: the medium's MediumData (the lights' volume samples); extra: another MediumData whose scattered light
-    the first generation gathers too (the light the scene sent back, render/pbl.py: returned_samples), or None;
-    make_data(samples) builds one from a namespace of v_* arrays; settings: the camera kernel's settings array
-    (all components on). Returns the union of the generations as such a namespace, or None when the boundary
-    reflects nothing."""
-    from pbvol_cli.render.pbl import SAMPLE_KEYS, bounced_share, eval_segments, segment_planes
-
+    source: the medium's SampleSet of the lights' volume samples; extra: another SampleSet whose scattered light
+    the first generation gathers too (the light the scene sent back: volume_samples.returned_samples), or None;
+    make_set(samples) builds one from a namespace of v_* arrays; settings: the gather rays' GatherSettings.
+    Returns the union of the generations as such a namespace, or None when the boundary reflects nothing."""
+    med = medium_params(bs.media, medium)
     pos, nin, sid, area, spacing = boundary_points(bs, medium, count, seed)
     n = len(pos)
     if n == 0:
@@ -155,7 +133,7 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
         for d in ([data] if g > 0 or extra is None else [data, extra]):
             out = np.zeros((n, 3, 3))
             eval_segments(pool, threads, ok, pos + bs.eps * nin, w, np.ones((n, 3)), np.where(np.isfinite(t), t, 0.0),
-                          rng.copy(), bs.media[medium], d.kernel_tuple(), settings, out, np.zeros(n, np.int64), planes)
+                          rng.copy(), med, d.kernel, settings, out, np.zeros(n, np.int64), planes)
             L += out.sum(axis=1)
         bpos, bdir, bpow = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
         # the glass wall behind the boundary, seen by the light leaving along -w from just inside x_j
@@ -163,23 +141,24 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
         t0, s0, ng0, ns0 = closest_surface_hits(caster, bs, inner, -w)
         R2 = layer_reflectance(caster, bs, inner, -w, t0, s0, ng0, ns0)
         _reflected_beams(bs.surfaces, medium, pos, nin, sid, w, L, area, bs.eps, R2, bpos, bdir, bpow)
-        rob = _robust_total(bpow)  # before the sharing spreads a spike over its neighbours
+        rob = robust_total(bpow)  # before the sharing spreads a spike over its neighbours
         smoothed = np.zeros_like(bpow)
-        _share_among_neighbours(pos, bpow, SMOOTHING * spacing, smoothed)
+        share_among_neighbours(pos, bpow, SHARING_RADIUS * spacing, smoothed)
         bpow = smoothed
         live = np.flatnonzero(bpow.max(axis=1) > 0)
         if len(live) == 0:
             break
-        seg = beam_segments(caster, bs, bpos[live], bdir[live], bpow[live], np.full(len(live), medium, np.int64),
-                            np.full(len(live), area), nin[live].copy(), segments, max_reflections,
+        beams = Beams(bpos[live], bdir[live], bpow[live], np.full(len(live), medium, np.int64),
+                      np.full(len(live), area), nin[live].copy())
+        seg = beam_segments(caster, bs, beams, segments, max_reflections,
                             seed + 7919 * (g + 1))
         gen = SimpleNamespace(**{f"v_{k}": v for k, v in seg.items()})
         gens.append(gen)
         emitted.append(bpow[live].sum(axis=0))
         robust.append(rob)
         if g + 1 < generations:
-            data = make_data(gen)
-            if bounced_share(source, data) < MIN_SHARE:
+            data = make_set(gen)
+            if scattered_share(source, data) < MIN_SHARE:
                 break  # too little to follow further (a liquid whose boundary hardly reflects)
     if not gens:
         return None

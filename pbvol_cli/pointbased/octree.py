@@ -13,6 +13,7 @@ import numpy as np
 from numba import njit
 
 LEAF_SIZE = 8
+LEAF_WALK_STACK = 128  # depth-first stack of next_leaf's walks (8 children a level: ample)
 
 
 @dataclass
@@ -141,3 +142,23 @@ def build_octree(points, box_lo, box_hi, dirs, power, leaf_size: int = LEAF_SIZE
         _aggregate(order, start, end, fc, nc, m, pts, np.asarray(box_lo, float), np.asarray(box_hi, float),
                    np.asarray(dirs, float), np.asarray(power, float), lo, hi, centre, dirsum, pw)
     return Octree(order, lo, hi, centre, dirsum, pw, fc[:m].copy(), nc[:m].copy(), start[:m].copy(), end[:m].copy())
+
+
+@njit(inline="always", cache=True)
+def next_leaf(tree, stack, sp, px, py, pz, margin):
+    """A depth-first walk to the leaves whose box, widened by margin, holds P (tree: Octree.arrays()). Pops the
+    stack (its size in sp[0]; start with the root on it) until such a leaf, and returns it; -1 when done."""
+    lo, hi, first_child, n_children = tree[1], tree[2], tree[6], tree[7]
+    while sp[0] > 0:
+        sp[0] -= 1
+        nd = stack[sp[0]]
+        if (px < lo[nd, 0] - margin or px > hi[nd, 0] + margin or py < lo[nd, 1] - margin
+                or py > hi[nd, 1] + margin or pz < lo[nd, 2] - margin or pz > hi[nd, 2] + margin):
+            continue
+        if first_child[nd] < 0:
+            return nd
+        for ch in range(first_child[nd], first_child[nd] + n_children[nd]):
+            if sp[0] < stack.shape[0]:
+                stack[sp[0]] = ch
+                sp[0] += 1
+    return -1

@@ -10,12 +10,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from pbvol_cli.geometry.scene_build import SPH_CENTER, SPH_RADIUS, SPH_SURFACE
 from pbvol_cli.physics.sampling import rand, seed_state, uniform_sphere
 
 SLOTS = 8  # a cube of side r holds at most 8 points at mutual distance >= r
+SHARING_RADIUS = 2.5  # share_among_neighbours's radius, in the samples' minimum distances
 
 
 @njit(cache=True)
@@ -121,3 +122,24 @@ def poisson_disk(V, F, tri_normals, tri_surface, spheres, target: int, seed: int
     keep = np.zeros(n, np.bool_)
     count = _dart_throw(pos, radius, lo, dims, keep)
     return pos[keep], nrm[keep], sid[keep], area / count, radius
+
+
+@njit(parallel=True, cache=True)
+def share_among_neighbours(pos, val, radius, out):
+    """Each point's value (n, 3) shared equally among the points within `radius` of it (itself included), added
+    into out: the sum is kept, and one point's outlier (a single gather ray meeting a volume sample close by, a
+    path that found a light by chance) is spread over its neighbours."""
+    n = pos.shape[0]
+    count = np.zeros(n)
+    r2 = radius * radius
+    for i in prange(n):
+        k = 0
+        for j in range(n):
+            if (pos[i, 0] - pos[j, 0]) ** 2 + (pos[i, 1] - pos[j, 1]) ** 2 + (pos[i, 2] - pos[j, 2]) ** 2 <= r2:
+                k += 1
+        count[i] = k
+    for j in prange(n):
+        for i in range(n):
+            if (pos[i, 0] - pos[j, 0]) ** 2 + (pos[i, 1] - pos[j, 1]) ** 2 + (pos[i, 2] - pos[j, 2]) ** 2 <= r2:
+                for c in range(3):
+                    out[j, c] += val[i, c] / count[i]

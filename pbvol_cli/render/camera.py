@@ -2,7 +2,6 @@
 
 import math
 
-import numpy as np
 from numba import njit, prange
 
 from pbvol_cli.geometry.scene_build import CAM_FORWARD, CAM_HEIGHT, CAM_POS, CAM_RIGHT, CAM_UP, CAM_WIDTH

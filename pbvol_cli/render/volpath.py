@@ -32,7 +32,7 @@ from numba import njit, prange
 
 from pbvol_cli.geometry.distance_grid import mesh_distance_bound
 from pbvol_cli.geometry.raycast import TriangleCaster
-from pbvol_cli.geometry.scene_build import (DIELECTRIC, DIFFUSE, MED_G, MED_PHASE, MED_SEALED, MED_SIGMA_A, MED_SIGMA_S,
+from pbvol_cli.geometry.scene_build import (DIELECTRIC, MED_G, MED_PHASE, MED_SEALED, MED_SIGMA_A, MED_SIGMA_S,
                                            MIRROR, NULL, SPH_CENTER, SPH_RADIUS, SPH_SURFACE, SURF_ALBEDO, SURF_TYPE,
                                            BuiltScene)
 from pbvol_cli.physics.fresnel import reflect, refract
@@ -41,7 +41,7 @@ from pbvol_cli.physics.phase import phase_eval, phase_sample
 from pbvol_cli.physics.sampling import cosine_hemisphere, power_heuristic, rand, seed_state
 from pbvol_cli.render.camera import generate_camera_rays
 from pbvol_cli.render.interfaces import dielectric_fresnel, incident_side, indices, medium_beyond, shadow_ray_length
-from pbvol_cli.geometry.intersect import analytic_distance_bound, analytic_hit, mesh_shading_normal
+from pbvol_cli.geometry.intersect import analytic_hit, mesh_shading_normal
 
 DEAD, NEED_CAST, CONTINUE = 0, 1, 2
 INF = np.inf

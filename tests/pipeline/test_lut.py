@@ -1,7 +1,6 @@
 """The precompute-lut stage: cache hits, misses, damaged entries, and the command line."""
 
 import numpy as np
-import pytest
 from typer.testing import CliRunner
 
 from conftest import camera, write_scene

@@ -7,9 +7,13 @@ import numpy as np
 from conftest import build, camera, volpath
 from pbvol_cli.geometry.raycast import TriangleCaster
 from pbvol_cli.multiple_scattering.table import empty_table
-from pbvol_cli.pointbased.bounced import _robust_total, boundary_points, bounced_samples
+from pbvol_cli.config import PblSettings
+from pbvol_cli.pointbased.bounced import boundary_points, bounced_samples, robust_total
+from pbvol_cli.pointbased.camera_pass import render_pbl
+from pbvol_cli.pointbased.gather import GatherSettings
 from pbvol_cli.pointbased.light_samples import place_light_samples
-from pbvol_cli.render.pbl import MediumData, render_pbl, returned_samples
+from pbvol_cli.pointbased.surface_samples import share_among_neighbours
+from pbvol_cli.pointbased.volume_samples import SampleSet, returned_samples
 
 
 def _sphere(eta=1.5, mfp=1.0):
@@ -35,24 +39,24 @@ def test_double_plus_bounced_single_matches_volpath_order_2(tmp_path):
     standard errors of both estimates."""
     bs = build(tmp_path, _sphere())
     tabs = [empty_table().render_args()] * 3
-    gather = np.array([4, 8, 0.02, 1.0, 0.0, 0.0, 1, 1])  # the light arriving at the boundary: single only
+    gather = GatherSettings(4, 8, 0.02, True, False, False, 1, 1)  # the light arriving at the boundary: single only
 
     def media_for_pass(p):
         ls = place_light_samples(bs, 10000, 16, 8, 8, 100 + p, 2)
-        md = MediumData(ls, 0, bs.media[0], tabs, 2.0)
+        md = SampleSet(ls, 0, bs.media, tabs, 2.0)
         caster, pool = TriangleCaster(bs.vertices, bs.faces, 2), ThreadPoolExecutor(2)
-        b = bounced_samples(bs, caster, pool, 2, 0, md, lambda s: MediumData(s, 0, bs.media[0], tabs, 1.0), 2000, 1,
+        b = bounced_samples(bs, caster, pool, 2, 0, md, lambda s: SampleSet(s, 0, bs.media, tabs, 1.0), 2000, 1,
                             16, 8, gather, 500 + p)
         caster.close()
         pool.shutdown()
-        return {0: (md, MediumData(b, 0, bs.media[0], tabs, 1.0))}
+        return {0: (md, SampleSet(b, 0, bs.media, tabs, 1.0))}
 
-    settings = {"kmax": 4, "kmax_scattered": 1, "cut_size": 8, "clamp": 0.02, "components": ("double", "bounced"),
-                "max_split_depth": 8, "roulette": 0.1, "diffuse_bounces": 0, "kmax_diffuse": 1,
-                "bounced_estimators": (1.0, 0.0, 0.0)}
+    settings = PblSettings(kmax=4, kmax_scattered=1, cut_size=8, clamp=0.02, components=("double", "bounced"),
+                           max_split_depth=8, roulette=0.1, diffuse_bounces=0, kmax_diffuse=1, surface_paths=1)
     halves = []
     for seed in (1, 2):
-        _, layers, _ = render_pbl(bs, lambda p: media_for_pass(p + 10 * seed), 8, seed, settings, 2)
+        _, layers, _ = render_pbl(bs, lambda p: media_for_pass(p + 10 * seed), 8, seed, settings, 2,
+                                  bounced_terms=("single",))
         halves.append((layers["double"] + layers["bounced"]).mean((0, 1)))
     a, b = volpath(bs, spp=512, seed=1, orders="2"), volpath(bs, spp=512, seed=2, orders="2")
     ref = 0.5 * (a + b).mean((0, 1))
@@ -63,14 +67,12 @@ def test_double_plus_bounced_single_matches_volpath_order_2(tmp_path):
 
 
 def test_sharing_among_neighbours_keeps_the_total_and_spreads_an_outlier():
-    from pbvol_cli.pointbased.bounced import _share_among_neighbours
-
     rng = np.random.default_rng(4)
     pos = rng.random((300, 3))
     val = rng.random((300, 3))
     val[7] = 1000.0  # one gather ray's outlier
     out = np.zeros_like(val)
-    _share_among_neighbours(pos, val, 0.2, out)
+    share_among_neighbours(pos, val, 0.2, out)
     assert np.allclose(out.sum(0), val.sum(0))
     near = np.linalg.norm(pos - pos[7], axis=1) <= 0.2
     assert near.sum() > 5 and out[~near].max() < 2.0  # only its neighbours received it, each a share
@@ -83,13 +85,13 @@ def test_tail_ratio_totals_ignore_a_single_spike():
     almost not; spread-out power is kept whole up to the clipped top percent."""
     rng = np.random.default_rng(3)
     p = rng.uniform(0.5, 1.5, size=(1000, 3))
-    base = _robust_total(p)
+    base = robust_total(p)
     assert np.all(base > 0.99 * p.sum(axis=0))
     spiked = p.copy()
     spiked[17] = 500.0
     assert np.all(spiked.sum(axis=0) > 1.4 * p.sum(axis=0))
-    assert np.allclose(_robust_total(spiked), base, rtol=2e-3)
-    assert np.allclose(_robust_total(np.zeros((5, 3))), 0.0)
+    assert np.allclose(robust_total(spiked), base, rtol=2e-3)
+    assert np.allclose(robust_total(np.zeros((5, 3))), 0.0)
 
 
 def test_scattered_light_that_a_floor_sends_back_completes_order_2(tmp_path):
@@ -113,14 +115,14 @@ def test_scattered_light_that_a_floor_sends_back_completes_order_2(tmp_path):
         ls = place_light_samples(bs, 20000, 16, 8, 8, 100 + p, 2, returned_orders="1")
         back = returned_samples(ls, 0)
         assert len(back.v_len) > 0
-        return {0: (MediumData(ls, 0, bs.media[0], tabs, 2.0), MediumData(back, 0, bs.media[0], tabs, 2.0))}
+        return {0: (SampleSet(ls, 0, bs.media, tabs, 2.0), SampleSet(back, 0, bs.media, tabs, 2.0))}
 
-    settings = {"kmax": 4, "kmax_scattered": 1, "cut_size": 8, "clamp": 0.02, "components": ("double", "bounced"),
-                "max_split_depth": 8, "roulette": 0.1, "diffuse_bounces": 1, "kmax_diffuse": 1,
-                "bounced_estimators": (1.0, 0.0, 0.0)}
+    settings = PblSettings(kmax=4, kmax_scattered=1, cut_size=8, clamp=0.02, components=("double", "bounced"),
+                           max_split_depth=8, roulette=0.1, diffuse_bounces=1, kmax_diffuse=1, surface_paths=1)
     double, back = [], []
     for seed in (1, 2):
-        _, layers, _ = render_pbl(bs, lambda p: media_for_pass(p + 100 * seed), 32, seed, settings, 2)
+        _, layers, _ = render_pbl(bs, lambda p: media_for_pass(p + 100 * seed), 32, seed, settings, 2,
+                                  bounced_terms=("single",))
         double.append(layers["double"].mean((0, 1)))
         back.append(layers["bounced"].mean((0, 1)))
     halves = [d + b for d, b in zip(double, back)]

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from conftest import build, camera, volpath
+from conftest import build, camera, camera_ray, single_scattering_reference, volpath
 
 WHITE_ENV = [{"type": "environment", "radiance": 1.0}]
 
@@ -74,8 +74,8 @@ def test_diffuse_plane_under_sphere_light_matches_closed_form(tmp_path):
                 for sx in range(k):
                     x = 2 * (px + (sx + 0.5) / k) / W - 1
                     y = 1 - 2 * (py + (sy + 0.5) / k) / H
-                    d = cam[3:6] + x * cam[6:9] + y * cam[9:12]
-                    p = cam[:3] - d * cam[1] / d[1]  # hit on the plane y = 0
+                    o, d = camera_ray(cam, x, y)
+                    p = o - d * o[1] / d[1]  # hit on the plane y = 0
                     to_c = np.array([0, h, 0]) - p
                     D = np.linalg.norm(to_c)
                     acc += a / math.pi * math.pi * L * (r / D) ** 2 * (to_c[1] / D)
@@ -83,43 +83,6 @@ def test_diffuse_plane_under_sphere_light_matches_closed_form(tmp_path):
     got, exp = img[..., 0].ravel(), expected.ravel()
     assert np.abs(got.mean() - exp.mean()) < 4 * got.std() / math.sqrt(got.size)
     assert np.mean(((got - exp) / exp) ** 2) < 0.01
-
-
-def _single_scattering_reference(built, sigma_s, sigma_t, g, light_dir, E, R, k=6):
-    """Order-1 radiance of a null-bounded sphere of radius R at the origin under a directional light,
-    by quadrature along each camera ray (independent of the renderer's sampling)."""
-    cam = built.camera
-    W, H = int(cam[12]), int(cam[13])
-    u = -np.asarray(light_dir, float) / np.linalg.norm(light_dir)  # toward the light
-    xs, ws = np.polynomial.legendre.leggauss(48)
-    out = np.zeros((H, W, 3))
-    covered = np.ones((H, W), bool)
-    for py in range(H):
-        for px in range(W):
-            acc = np.zeros(3)
-            for sy in range(k):
-                for sx in range(k):
-                    x = 2 * (px + (sx + 0.5) / k) / W - 1
-                    y = 1 - 2 * (py + (sy + 0.5) / k) / H
-                    d = cam[3:6] + x * cam[6:9] + y * cam[9:12]
-                    d /= np.linalg.norm(d)
-                    o = cam[:3]
-                    b = o @ d
-                    disc = b * b - (o @ o - R * R)
-                    if disc <= 0:
-                        covered[py, px] = False
-                        continue
-                    t0, t1 = -b - math.sqrt(disc), -b + math.sqrt(disc)
-                    t = 0.5 * (t1 - t0) * xs + 0.5 * (t1 + t0)
-                    P = o + t[:, None] * d
-                    pu = P @ u
-                    s = -pu + np.sqrt(np.maximum(pu * pu - (np.sum(P * P, 1) - R * R), 0))
-                    mu = d @ u  # cos between propagation of the light (-u) and toward the camera (-d)
-                    ph = (1 - g * g) / (4 * math.pi * (1 + g * g - 2 * g * mu) ** 1.5)
-                    f = sigma_s[None] * np.exp(-sigma_t[None] * ((t - t0)[:, None] + s[:, None])) * ph * E
-                    acc += 0.5 * (t1 - t0) * (ws[:, None] * f).sum(0)
-            out[py, px] = acc / (k * k)
-    return out, covered
 
 
 def test_single_scattering_matches_quadrature(tmp_path):
@@ -133,7 +96,7 @@ def test_single_scattering_matches_quadrature(tmp_path):
     built = build(tmp_path, scene)
     a = volpath(built, spp=128, seed=1, orders="1")
     b = volpath(built, spp=128, seed=2, orders="1")
-    ref, covered = _single_scattering_reference(built, sigma_s, sigma_s + sigma_a, g, light_dir, 2.0, 1.0)
+    ref, covered = single_scattering_reference(built, sigma_s, sigma_s + sigma_a, g, light_dir, 2.0, 1.0)
     img = 0.5 * (a + b)
     # per-pixel noise of the average of the two renders, estimated from their difference
     noise_var = ((a - b) ** 2 / 4)[covered].mean(0)

@@ -1,0 +1,376 @@
+"""The point-based method's camera side: camera paths, their surfaces, and the medium gathered along them
+(Wang et al. 2016, sec. 3.6-3.11).
+
+Camera paths are traced in a wavefront like volpath's, but split at smooth interfaces: the reflected and the
+refracted branch are both followed, weighted by Fresnel (F and (1 - F) (eta_i/eta_t)^2), up to a split depth, so
+the image carries no noise from choosing between them. Each segment a path travels inside a medium gathers the
+medium's light from the light samples (gather.py). Branches of small weight evaluate the medium by Russian
+roulette. Diffuse surfaces take one shadow ray per light and continue by cosine-sampled bounces (indirect light);
+emitters and the environment seen directly or through specular chains add their radiance (see _interact_one for
+when a shadow ray has already counted them).
+
+Light reflected by the medium's boundary after scattering (sec. 3.10) comes as a second set of volume samples per
+medium (bounced.py), evaluated by the same estimators into the `bounced` layer.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import namedtuple
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+from numba import njit, prange
+
+from pbvol_cli.geometry.intersect import closest_surface_hits, light_hits, visible
+from pbvol_cli.geometry.raycast import TriangleCaster
+from pbvol_cli.geometry.scene_build import DIELECTRIC, DIFFUSE, MIRROR, NULL, SURF_ALBEDO, SURF_TYPE, BuiltScene
+from pbvol_cli.physics.fresnel import reflect, refract
+from pbvol_cli.physics.lights import ENVIRONMENT, LIGHT_RGB, LIGHT_TYPE, emitted_toward, light_sample
+from pbvol_cli.physics.sampling import cosine_hemisphere, rand
+from pbvol_cli.pointbased.gather import (LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_SINGLE, eval_segments, gather_settings,
+                                         segment_planes)
+from pbvol_cli.pointbased.volume_samples import medium_params, scattered_share
+from pbvol_cli.render.camera import generate_camera_rays
+from pbvol_cli.render.interfaces import dielectric_fresnel, incident_side, indices, medium_beyond, shadow_ray_length
+
+COMPONENTS = ("single", "double", "multiple", "bounced")
+LAYER_BOUNCED = 3  # contrib[ray, layer, channel]: gather's three layers, then the bounced samples' sum
+BOUNCED_ROULETTE = 0.2  # bounced samples carrying less than this share of the scattered power are evaluated
+# on that share / BOUNCED_ROULETTE of the camera segments (weight 1 / share: unbiased, their noise stays small)
+
+# the kernels' bundles (numba reads them by field name)
+Rays = namedtuple("Rays", ["pos", "dir", "beta", "medium", "depth", "rng", "state"])
+Hits = namedtuple("Hits", ["t", "surface", "ng", "ns", "light"])
+Children = namedtuple("Children", ["pos", "dir", "beta", "medium", "ok", "state"])
+ShadowRays = namedtuple("ShadowRays", ["pos", "dir", "dist", "contrib", "ok"])
+PathLimits = namedtuple("PathLimits", ["eps", "max_split_depth", "max_diffuse"])
+
+
+# Numba pitfall: arrays unpacked from a tuple inside a parallel function lose their writes in prange (numba
+# 0.68). The parallel kernel therefore only loops and calls an inner function that takes the tuples.
+@njit(parallel=True, cache=True)
+def _interact(surfaces, lights, rays, hits, limits, emit, children, shadows):
+    for i in prange(rays.pos.shape[0]):
+        _interact_one(i, surfaces, lights, rays, hits, limits, emit, children, shadows)
+
+
+@njit(cache=True)
+def _interact_one(i, surfaces, lights, rays, hits, limits, emit, children, shadows):
+    """Ray i's emission, then the surface it meets at hits.t[i]: up to two children (reflected: slot 2i,
+    transmitted: 2i + 1); at a diffuse surface, one shadow ray per light (slots i * n_lights + light) and, below
+    limits.max_diffuse bounces, one cosine-sampled child (slot 2i) for indirect light. rays.state[i] = 4 x (diffuse
+    bounces) + 2 x (a specular interface crossed since the last diffuse bounce): lights and the environment seen
+    directly after a diffuse bounce are already counted by the shadow rays, which stop at every surface; seen
+    through a specular chain (a caustic through the glass) they are not, and count."""
+    pos, dirs, beta, medium, depth, rng, state = (rays.pos, rays.dir, rays.beta, rays.medium, rays.depth, rays.rng,
+                                                  rays.state)
+    t, surf, ng, ns, li = hits.t, hits.surface, hits.ng, hits.ns, hits.light
+    child_pos, child_dir, child_beta = children.pos, children.dir, children.beta
+    child_med, child_ok, child_state = children.medium, children.ok, children.state
+    sh_pos, sh_dir, sh_dist, sh_C, sh_ok = shadows.pos, shadows.dir, shadows.dist, shadows.contrib, shadows.ok
+    eps = limits.eps
+    nl = lights.shape[0]
+    child_ok[2 * i] = child_ok[2 * i + 1] = False
+    for lk in range(nl):
+        sh_ok[i * nl + lk] = False
+    dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+    n_diffuse = state[i] >> 2
+    counts = n_diffuse == 0 or (state[i] & 2) != 0  # emission not already counted by a shadow ray
+    if li[i] >= 0 and not counts:
+        return
+    if li[i] >= 0:  # an area light in front of the surface
+        e = emitted_toward(lights, li[i], dx, dy, dz, pos[i, 0], pos[i, 1], pos[i, 2], t[i])
+        for c in range(3):
+            emit[i, c] += beta[i, c] * lights[li[i], LIGHT_RGB + c] * e
+        return
+    s = surf[i]
+    if s < 0 and not counts:
+        return
+    if s < 0:
+        for k in range(nl):
+            if lights[k, LIGHT_TYPE] == ENVIRONMENT:
+                for c in range(3):
+                    emit[i, c] += beta[i, c] * lights[k, LIGHT_RGB + c]
+        return
+    if depth[i] >= limits.max_split_depth:
+        return
+    hx, hy, hz = pos[i, 0] + t[i] * dx, pos[i, 1] + t[i] * dy, pos[i, 2] + t[i] * dz
+    entering, gx, gy, gz, nx, ny, nz = incident_side(dx, dy, dz, ng[i, 0], ng[i, 1], ng[i, 2], ns[i, 0], ns[i, 1],
+                                                     ns[i, 2])
+    stype = surfaces[s, SURF_TYPE]
+    if stype == DIFFUSE:
+        # direct light from every light, one sample each (the environment by cosine-weighted directions)
+        st = np.empty(1, np.uint64)
+        st[0] = rng[i]
+        for lk in range(nl):
+            j = i * nl + lk
+            sh_ok[j] = False
+            u1, u2 = rand(st, 0), rand(st, 0)
+            if lights[lk, LIGHT_TYPE] == ENVIRONMENT:
+                wx, wy, wz = cosine_hemisphere(u1, u2, nx, ny, nz)
+                dist, Lr, Lg, Lb = np.inf, lights[lk, LIGHT_RGB], lights[lk, LIGHT_RGB + 1], lights[lk, LIGHT_RGB + 2]
+                c = wx * nx + wy * ny + wz * nz
+                f = 1.0  # (c / pi) / pdf, pdf = c / pi
+                ok = c > 0.0
+            else:
+                wx, wy, wz, dist, Lr, Lg, Lb, pdf, delta = light_sample(lights, lk, hx, hy, hz, u1, u2)
+                c = wx * nx + wy * ny + wz * nz
+                ok = pdf > 0.0 and c > 0.0
+                f = c / math.pi / pdf if ok else 0.0
+            if ok and wx * gx + wy * gy + wz * gz > 0.0:
+                sh_C[j, 0] = beta[i, 0] * surfaces[s, SURF_ALBEDO] * f * Lr
+                sh_C[j, 1] = beta[i, 1] * surfaces[s, SURF_ALBEDO + 1] * f * Lg
+                sh_C[j, 2] = beta[i, 2] * surfaces[s, SURF_ALBEDO + 2] * f * Lb
+                sh_pos[j, 0], sh_pos[j, 1], sh_pos[j, 2] = hx + eps * gx, hy + eps * gy, hz + eps * gz
+                sh_dir[j, 0], sh_dir[j, 1], sh_dir[j, 2] = wx, wy, wz
+                sh_dist[j] = shadow_ray_length(dist, eps)
+                sh_ok[j] = True
+        if n_diffuse < limits.max_diffuse:
+            j = 2 * i
+            wx, wy, wz = cosine_hemisphere(rand(st, 0), rand(st, 0), nx, ny, nz)
+            if wx * gx + wy * gy + wz * gz > 0.0:
+                child_dir[j, 0], child_dir[j, 1], child_dir[j, 2] = wx, wy, wz
+                child_pos[j, 0], child_pos[j, 1], child_pos[j, 2] = hx + eps * gx, hy + eps * gy, hz + eps * gz
+                for c in range(3):  # albedo: (albedo / pi) cos / (cos / pi)
+                    child_beta[j, c] = beta[i, c] * surfaces[s, SURF_ALBEDO + c]
+                child_med[j] = medium[i]
+                child_state[j] = (n_diffuse + 1) << 2
+                child_ok[j] = True
+        rng[i] = st[0]
+        return
+    # specular: reflected child (slot 2i) and transmitted child (slot 2i + 1)
+    eta_i = eta_t = 1.0
+    cos_i = cos_t = 1.0
+    if stype == MIRROR:
+        F, kt = 1.0, 0.0
+        rscale = (surfaces[s, SURF_ALBEDO], surfaces[s, SURF_ALBEDO + 1], surfaces[s, SURF_ALBEDO + 2])
+    else:
+        eta_i, eta_t = indices(surfaces, s, entering)
+        cos_i, F, cos_t = dielectric_fresnel(eta_i, eta_t, dx, dy, dz, nx, ny, nz)
+        if stype != DIELECTRIC:
+            F, cos_t = 0.0, cos_i
+        kt = (1.0 - F) * (eta_i / eta_t) ** 2
+        rscale = (1.0, 1.0, 1.0)
+    if F > 0.0:
+        j = 2 * i
+        wx, wy, wz = reflect(dx, dy, dz, nx, ny, nz)
+        child_dir[j, 0], child_dir[j, 1], child_dir[j, 2] = wx, wy, wz
+        child_pos[j, 0], child_pos[j, 1], child_pos[j, 2] = hx + eps * gx, hy + eps * gy, hz + eps * gz
+        for c in range(3):
+            child_beta[j, c] = beta[i, c] * F * rscale[c]
+        child_med[j] = medium[i]
+        child_state[j] = state[i] | 2
+        child_ok[j] = True
+    if kt > 0.0:
+        j = 2 * i + 1
+        if stype == NULL:
+            wx, wy, wz = dx, dy, dz
+        else:
+            wx, wy, wz = refract(dx, dy, dz, nx, ny, nz, eta_t / eta_i, cos_i, cos_t)
+        child_dir[j, 0], child_dir[j, 1], child_dir[j, 2] = wx, wy, wz
+        child_pos[j, 0], child_pos[j, 1], child_pos[j, 2] = hx - eps * gx, hy - eps * gy, hz - eps * gz
+        for c in range(3):
+            child_beta[j, c] = beta[i, c] * kt
+        child_med[j] = medium_beyond(surfaces, s, entering)
+        child_state[j] = state[i] | 2
+        child_ok[j] = True
+
+
+# surface_paths = 0 (auto): the first two passes trace AUTO_FIRST_PATHS paths per pixel; from then on each pass
+# takes k = sqrt(PASS_COST_RATIO S1 / M) (auto_surface_paths), measured on the passes before it
+AUTO_FIRST_PATHS = 8
+AUTO_MAX_PATHS = 128
+PASS_COST_RATIO = 20.0  # a pass's medium work over one surface path per pixel (measured 16-30: docs/pbl.md). The
+# optimum is flat in it (k goes as its square root), and a constant keeps the image independent of timings
+
+
+def auto_surface_paths(s1: float, m: float) -> int:
+    """Camera paths per pixel for the next pass. A pass with k paths costs about c (k + R) (R = PASS_COST_RATIO)
+    and leaves a variance S1 / k + M (S1: one surface path's, M: the medium evaluation's, both relative as
+    compare's relMSE): the product, the error at equal time, is least at k = sqrt(R S1 / M)."""
+    if not s1 > 0.0:
+        return 1
+    if not m > 0.0:
+        return AUTO_MAX_PATHS
+    return int(min(AUTO_MAX_PATHS, max(1, round(math.sqrt(PASS_COST_RATIO * s1 / m)))))
+
+
+class PassStatistics:
+    """The two variances auto_surface_paths weighs, from the passes so far, relative per pixel and channel as
+    compare's relMSE (over the image so far squared + 0.01): the surface paths' spread within a pass (one path's
+    variance) and the medium's from pass to pass (one evaluation per pixel and pass)."""
+
+    def __init__(self, npix: int):
+        self.surface_var = np.zeros((npix, 3))  # sum over passes of the within-pass variance of one path
+        self.surface_passes = 0
+        self.medium_sum, self.medium_sq = np.zeros((npix, 3)), np.zeros((npix, 3))
+        self.passes = 0
+
+    def add(self, k: int, surface_sum, surface_sq, medium):
+        """A pass: its per-pixel sum and sum of squares over its k surface paths, and its medium estimate."""
+        if k > 1:
+            self.surface_var += np.maximum(surface_sq - surface_sum ** 2 / k, 0.0) / (k - 1)
+            self.surface_passes += 1
+        self.medium_sum += medium
+        self.medium_sq += medium ** 2
+        self.passes += 1
+
+    def next_paths(self, image) -> int | None:
+        """k for the next pass, or None while two passes (one of them with k > 1) are not yet in."""
+        if self.passes < 2 or self.surface_passes < 1:
+            return None
+        den = image ** 2 + 1e-2
+        s1 = float((self.surface_var / self.surface_passes / den).mean())
+        p = self.passes
+        m = float((np.maximum(self.medium_sq - self.medium_sum ** 2 / p, 0.0) / (p - 1) / den).mean())
+        return auto_surface_paths(s1, m)
+
+
+def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads: int, progress=None,
+               bounced_terms=("single", "double", "multiple"), time_limit: float | None = None):
+    """Renders spp passes with the settings pbl (config.PblSettings); pass p uses the light samples
+    media_for_pass(p) ({medium: (SampleSet of the lights' samples, SampleSet of the bounced samples or None)}).
+
+    A pass traces k camera paths per pixel: all of them shade surfaces, and one of them, chosen uniformly at random
+    per pixel and pass, also evaluates the medium, its medium terms weighted by k. The pixel's estimate stays
+    unbiased and the medium's cost per pass is that of one path, while the surfaces' noise (path traced like
+    volpath's) falls k times. k is pbl.surface_paths, or with 0 (auto) chosen per pass from the variances measured
+    on the passes before it (auto_surface_paths). bounced_terms: the estimators that evaluate the bounced samples
+    (all three make the bounced layer; tests take a subset). time_limit (seconds): no pass starts after it.
+    Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats; stats["spp"]: the passes rendered,
+    stats["surface_paths"]: k of each pass)."""
+    W, H = bs.resolution
+    npix = W * H
+    settings = gather_settings(pbl, pbl.components)
+    # the bounced light is smooth along a ray: kmax_scattered points for its single scattering too
+    settings_b = gather_settings(pbl, bounced_terms)._replace(kmax=pbl.kmax_scattered)
+    caster = TriangleCaster(bs.vertices, bs.faces, threads)
+    pool = ThreadPoolExecutor(threads) if threads > 1 else None
+    names = (*COMPONENTS, "surface")
+    layers = {name: np.zeros((npix, 3)) for name in names}
+    stats = PassStatistics(npix)
+    ks = []
+    t0 = time.perf_counter()
+    chunk = 1 << 18
+    done = 0  # camera paths traced so far: path g is camera sample g // npix of pixel g % npix
+    passes = 0
+    for p in range(spp):
+        if time_limit is not None and p > 0 and time.perf_counter() - t0 > time_limit:
+            break
+        passes += 1
+        k = pbl.surface_paths
+        if k == 0:  # auto: from the passes so far, once two are in (the image so far weighs them as relMSE does)
+            k = (p and stats.next_paths(sum(layers.values()) / p)) or AUTO_FIRST_PATHS
+        ks.append(k)
+        media_data = media_for_pass(p)
+        # which of the pixel's k paths evaluates the medium in this pass (k = 1: every path)
+        chosen = np.random.default_rng([seed, p, 0x5EC7]).integers(0, k, npix) if k > 1 else np.zeros(npix, np.int64)
+        per_pass = npix * k
+        acc = {name: np.zeros((npix, 3)) for name in names}
+        surface_sq = np.zeros((npix, 3))
+        for c0 in range(0, per_pass, chunk):
+            n = min(chunk, per_pass - c0)
+            path_surface = np.zeros((n, 3))
+            _trace_batch(bs, caster, pool, threads, media_data, seed, done + c0, n, npix, settings, settings_b, pbl,
+                         acc, chosen, k, path_surface)
+            pix = (done + c0 + np.arange(n)) % npix
+            for ch in range(3):
+                surface_sq[:, ch] += np.bincount(pix, weights=path_surface[:, ch] ** 2, minlength=npix)
+            if progress is not None:
+                progress(p * npix + (c0 + n) * npix // per_pass, spp * npix)
+        done += per_pass
+        for name in names:
+            layers[name] += acc[name] / k
+        stats.add(k, acc["surface"], surface_sq, sum(acc[c] for c in COMPONENTS) / k)
+    caster.close()
+    if pool is not None:
+        pool.shutdown()
+    out = {name: (v / passes).reshape(H, W, 3) for name, v in layers.items()}
+    image = sum(out.values())
+    return image, out, {"time_s": time.perf_counter() - t0, "spp": passes, "surface_paths": ks}
+
+
+def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, settings, settings_b, pbl, layers,
+                 chosen, kpaths, path_surface):
+    """n camera paths starting at global path index `done`, traced to the end, added into layers. Path g is
+    camera sample g // npix of pixel g % npix; it evaluates the medium (weight kpaths) where its sample's index
+    within its pass, (g // npix) % kpaths, is chosen[pixel] (a pass's k consecutive samples cover every residue
+    once, wherever it starts). path_surface (n, 3): each path's surface light, added to."""
+    pos, dirs = np.zeros((n, 3)), np.zeros((n, 3))
+    pixel = np.zeros(n, np.int64)
+    rng = np.zeros(n, np.uint64)
+    generate_camera_rays(bs.camera, seed, done, n, pos, dirs, pixel, rng)
+    gidx = np.arange(done, done + n, dtype=np.int64)
+    path = np.arange(n)  # each ray's camera path within the batch
+    evm = (gidx // npix) % kpaths == chosen[pixel]  # the paths that evaluate the medium
+    beta = np.ones((n, 3))
+    roulette_rng = np.random.default_rng([seed, done])
+    medium = np.full(n, -1, np.int64)
+    depth = np.zeros(n, np.int64)
+    state = np.zeros(n, np.int64)  # see _interact_one
+    n_start = np.full((n, 3), np.nan)  # the normal of the surface each ray leaves (NaN: the camera)
+    limits = PathLimits(bs.eps, pbl.max_split_depth, pbl.diffuse_bounces)
+    while len(pos):
+        t, surf, ng, ns = closest_surface_hits(caster, bs, pos, dirs)
+        tl, li = np.empty(len(pos)), np.empty(len(pos), np.int64)
+        light_hits(bs.lights, pos, dirs, t, tl, li, np.full(len(pos), -1, np.int64))
+        tev = np.minimum(t, tl)
+        inside = np.flatnonzero((medium >= 0) & np.isfinite(tev))
+        contrib = np.zeros((len(pos), 4, 3))
+        planes = segment_planes(pos, dirs, t, n_start, ng) if len(inside) else None
+        for m in np.unique(medium[inside]):
+            sub = inside[medium[inside] == m]
+            lit, bounced = media_data.get(int(m), (None, None))
+            ms = sub[evm[sub]]  # the paths that evaluate the medium in this pass
+            med = medium_params(bs.media, int(m))
+            if lit is not None and lit.count and len(ms):
+                # weak branches (internal reflections) are evaluated with probability beta_max / roulette,
+                # their weight divided by it: unbiased, and most of the cost was in branches of weight < 0.01
+                q = np.minimum(1.0, beta[ms].max(axis=1) / max(pbl.roulette, 1e-300))
+                keep = roulette_rng.random(len(ms)) < q
+                ev = ms[keep]
+                beta_ev = beta.copy()
+                beta_ev[ev] /= (q[keep] / kpaths)[:, None]
+                eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, med, lit.kernel, settings, contrib,
+                              state >> 2, planes)
+                if bounced is not None and bounced.count:
+                    qb = min(1.0, scattered_share(lit, bounced) / BOUNCED_ROULETTE)
+                    evb = ev[roulette_rng.random(len(ev)) < qb]
+                    beta_b = beta_ev / qb
+                    cb3 = np.zeros((len(pos), 3, 3))
+                    eval_segments(pool, threads, evb, pos, dirs, beta_b, tev, rng, med, bounced.kernel, settings_b,
+                                  cb3, state >> 2, planes)
+                    contrib[:, LAYER_BOUNCED] += cb3.sum(axis=1)
+            beta[sub] *= np.exp(-sum(bs.medium_sigmas(m))[None, :] * tev[sub, None])
+        for c, name in zip((LAYER_SINGLE, LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_BOUNCED), COMPONENTS):
+            for ch in range(3):
+                layers[name][:, ch] += np.bincount(pixel, weights=contrib[:, c, ch], minlength=npix)
+        k = len(pos)
+        emit = np.zeros((k, 3))
+        children = Children(np.zeros((2 * k, 3)), np.zeros((2 * k, 3)), np.zeros((2 * k, 3)),
+                            np.zeros(2 * k, np.int64), np.zeros(2 * k, np.bool_), np.zeros(2 * k, np.int64))
+        ks = k * len(bs.lights)
+        shadows = ShadowRays(np.zeros((ks, 3)), np.zeros((ks, 3)), np.zeros(ks), np.zeros((ks, 3)),
+                             np.zeros(ks, np.bool_))
+        li = np.where(tl < t, li, -1)
+        # the hit distance is to what the ray meets: the emitter's where one is in front (a sphere light's side
+        # is judged at that point)
+        _interact(bs.surfaces, bs.lights, Rays(pos, dirs, beta, medium, depth, rng, state), Hits(tev, surf, ng, ns, li),
+                  limits, emit, children, shadows)
+        sidx = np.flatnonzero(shadows.ok)
+        if len(sidx):
+            vis = sidx[visible(caster, bs, shadows.pos[sidx], shadows.dir[sidx], shadows.dist[sidx],
+                               sidx % len(bs.lights))]
+            np.add.at(emit, vis // len(bs.lights), shadows.contrib[vis])
+        for ch in range(3):
+            layers["surface"][:, ch] += np.bincount(pixel, weights=emit[:, ch], minlength=npix)
+            path_surface[:, ch] += np.bincount(path, weights=emit[:, ch], minlength=n)
+        keep = children.ok & (children.beta.max(axis=1) > 1e-5)
+        parent = np.repeat(np.arange(k), 2)[keep]
+        pos, dirs, beta = children.pos[keep], children.dir[keep], children.beta[keep]
+        medium, state = children.medium[keep], children.state[keep]
+        depth, pixel, evm, path = depth[parent] + 1, pixel[parent], evm[parent], path[parent]
+        n_start = ng[parent]  # a child leaves the surface its parent met
+        rng = rng[parent] ^ (np.uint64(0x9E37) * (keep.nonzero()[0] % 2 + 1).astype(np.uint64))

@@ -1,0 +1,129 @@
+"""The medium's in-scattered light gathered along ray segments inside it (Wang et al. 2016, sec. 3.6, eq. 9).
+
+A segment of length d_max in a medium gets k points at stratified depths d_k = -log(1 - u_k (1 - e^(-s d_max))) / s
+(s: the medium's smallest sigma_t, u_k = (k + xi) / k), weighted per channel by e^(-sigma_t d_k) / (pdf(d_k) k): the
+transmittance toward the segment's start is in the weight. At each point the light samples' single, double and
+multiple scattering toward the segment's start (estimators: single_scattering.py, light_cut.py). Used by the
+camera paths (camera_pass.py) and by the bounced light's gather rays (bounced.py).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import namedtuple
+
+import numpy as np
+from numba import njit
+
+from pbvol_cli.physics.sampling import depth_of_fraction, rand
+from pbvol_cli.pointbased.light_cut import double_multiple
+from pbvol_cli.pointbased.single_scattering import single_scattering
+from pbvol_cli.pointbased.volume_samples import ENTRY_N, ENTRY_Q, EXIT_N, EXIT_Q, PLANE_COLS, Query
+
+GatherSettings = namedtuple("GatherSettings", ["kmax", "cut_size", "clamp", "single", "double", "multiple",
+                                               "kmax_scattered", "kmax_diffuse"])
+GatherSettings.__doc__ = """How a segment is evaluated: kmax points for single scattering, kmax_scattered for double
+and multiple (smooth along a ray), kmax_diffuse random points for every term after a diffuse bounce; the light cut's
+cut_size refinements and its clamp (scene units); which terms (single, double, multiple: bools)."""
+LAYER_SINGLE, LAYER_DOUBLE, LAYER_MULTIPLE = 0, 1, 2  # out[ray, layer, channel]
+
+
+def gather_settings(pbl, terms=("single", "double", "multiple")) -> GatherSettings:
+    """The camera paths' settings from a scene's [render.pbl] (config.PblSettings), for the given terms."""
+    return GatherSettings(pbl.kmax, pbl.cut_size, pbl.clamp, "single" in terms, "double" in terms,
+                          "multiple" in terms, pbl.kmax_scattered, pbl.kmax_diffuse)
+
+
+@njit(cache=True)
+def _segment(i, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes):
+    """The medium's light along ray i over [0, tseg[i]], times beta[i], into out[i, layer, channel]. A ray after a
+    diffuse bounce (diffuse[i] > 0) takes settings.kmax_diffuse random points for every term (sec. 3.6: averaged
+    over the bounces). planes[i]: the boundary's tangent planes where the segment starts and ends
+    (segment_planes), the nearer of which is each point's for the multiple term's image."""
+    sig_a, sig_s = med.sigma_a, med.sigma_s
+    kmax, k2 = settings.kmax, settings.kmax_scattered
+    do_s, do_d, do_m = settings.single, settings.double, settings.multiple
+    dmax = tseg[i]
+    s = min(sig_a[0] + sig_s[0], min(sig_a[1] + sig_s[1], sig_a[2] + sig_s[2]))
+    frac = -math.expm1(-s * dmax) if s > 0.0 else 1.0
+    o = np.zeros(3)
+    o3 = np.zeros(3)
+    wx, wy, wz = -dirs[i, 0], -dirs[i, 1], -dirs[i, 2]
+    xi = rand(rng, i)
+    pplane = np.empty(4)
+    # single scattering at kmax points; double and multiple (smooth along the ray) at their own k2 points
+    for comp in range(2):
+        n = kmax if comp == 0 else k2
+        if diffuse[i] > 0:
+            n = settings.kmax_diffuse
+        if (comp == 0 and not do_s) or (comp == 1 and not (do_d or do_m)):
+            continue
+        for k in range(n):
+            u = (k + xi) / n * frac
+            if s > 0.0:
+                d = depth_of_fraction(u, s)
+                pdf = s * math.exp(-s * d) / frac
+            else:
+                d = u * dmax
+                pdf = 1.0 / dmax
+            px, py, pz = pos[i, 0] + d * dirs[i, 0], pos[i, 1] + d * dirs[i, 1], pos[i, 2] + d * dirs[i, 2]
+            o[:] = 0.0
+            o3[:] = 0.0
+            if comp == 0:
+                single_scattering(vs, med, Query(px, py, pz, wx, wy, wz, pplane), o)
+            else:
+                # the point's boundary plane: the nearer of the segment's start and end planes
+                e = EXIT_N if (planes[i, EXIT_Q] - (planes[i, EXIT_N] * px + planes[i, EXIT_N + 1] * py
+                                                    + planes[i, EXIT_N + 2] * pz)
+                               < planes[i, ENTRY_Q] - (planes[i, ENTRY_N] * px + planes[i, ENTRY_N + 1] * py
+                                                       + planes[i, ENTRY_N + 2] * pz)) else ENTRY_N
+                for c in range(4):
+                    pplane[c] = planes[i, e + c]
+                double_multiple(vs, med, Query(px, py, pz, wx, wy, wz, pplane), settings.cut_size, settings.clamp,
+                                do_d, do_m, o, o3, rng, i)
+            for c in range(3):
+                w = beta[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * d) / (pdf * n)
+                if comp == 0:
+                    out[i, LAYER_SINGLE, c] += w * o[c]
+                else:
+                    out[i, LAYER_DOUBLE, c] += w * o[c]
+                    out[i, LAYER_MULTIPLE, c] += w * o3[c]
+
+
+@njit(nogil=True, cache=True)
+def _eval_segments(idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes):
+    for k in range(idx.shape[0]):
+        _segment(idx[k], pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes)
+
+
+def eval_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes):
+    """_segment for the rays idx: med (Medium), vs (VolumeSamples), settings (GatherSettings), out (n, 3, 3).
+
+    Numba's parallel loops reject the nested tuples (the octree, the tables): threads over slices instead, the
+    kernel releasing the GIL. Rays are independent, so the result does not depend on the split."""
+    if threads <= 1 or len(idx) < 64:
+        _eval_segments(idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes)
+        return
+    # interleaved slices balance rays of different cost
+    list(pool.map(lambda j: _eval_segments(idx[j::threads], pos, dirs, beta, tseg, rng, med, vs, settings, out,
+                                           diffuse, planes), range(threads)))
+
+
+def segment_planes(pos, dirs, t, n_start, n_end):
+    """(n, PLANE_COLS): the tangent planes n . x = q where each segment (from pos along dirs for t) starts and ends,
+    normals oriented out of the segment's side (n_start . d < 0, n_end . d > 0), from the surfaces' normals there
+    (NaN or an infinite t: no plane, q = inf). The multiple term mirrors its sources in the nearer one of each
+    point."""
+    out = np.zeros((len(pos), PLANE_COLS))
+    out[:, ENTRY_N + 2] = out[:, EXIT_N + 2] = 1.0
+    out[:, ENTRY_Q] = out[:, EXIT_Q] = np.inf
+    end = pos + np.where(np.isfinite(t), t, 0.0)[:, None] * dirs
+    for col, nrm, x, sgn in ((ENTRY_N, n_start, pos, -1.0), (EXIT_N, n_end, end, 1.0)):
+        if nrm is None:
+            continue
+        cos = np.einsum("ij,ij->i", nrm, dirs)
+        ok = np.isfinite(cos) & (cos != 0.0) & (np.isfinite(t) if col == EXIT_N else True)
+        n = nrm[ok] * (sgn * np.sign(cos[ok]))[:, None]
+        out[ok, col:col + 3] = n
+        out[ok, col + 3] = np.einsum("ij,ij->i", n, x[ok])
+    return out

@@ -1,0 +1,304 @@
+"""Double and multiple scattering at a camera point summed over all volume samples by a stochastic light cut.
+
+After Yuksel 2019 ("Stochastic Lightcuts"): the octree is refined cut_size times, the node of highest priority
+(power x solid angle x transmittance: boxes near or around P first) first; a refined leaf is summed sample by
+sample. Each node of the cut then contributes one representative sample drawn by importance toward P, weighted by
+1 / its probability, so the estimate is unbiased whatever the cut: the cut only sets the noise. Every sample's
+term is the exact per-sample estimator (sources.sample_terms): a node's phase lobes and 1/r^2 are never averaged
+(with g = 0.9 lobes and 1/r^2 are convex and centroid approximations read low). Multiple scattering, smooth and
+costly to look up, takes the cut as it stands after cut_size / MULTIPLE_CUT_SHARE refinements.
+
+Double scattering's near field (within vs.r_near of P) is summed over every sample there instead (_near_field):
+sources a few tenths of a mean free path from P, inside nodes the cut had not opened, were drawn rarely and weighted
+heavily, and ruled the cut's noise.
+"""
+
+import math
+
+import numpy as np
+from numba import njit
+
+from pbvol_cli.physics.phase import INV_4PI, phase_eval
+from pbvol_cli.physics.sampling import rand
+from pbvol_cli.pointbased.octree import LEAF_WALK_STACK, next_leaf
+from pbvol_cli.pointbased.sources import sample_terms
+
+CUT_CAP = 4096  # nodes a cut may hold at once (a node that would overflow it is used as it is)
+MULTIPLE_CUT_SHARE = 4  # multiple scattering (smooth) uses the cut after cut_size / 4 refinements
+
+
+@njit(inline="always", cache=True)
+def _node_priority(nd, lo, hi, power, px, py, pz, st_min):
+    """How much using node nd through one random representative may cost in variance: its power x the solid
+    angle its box subtends from P (R^2 / d_min^2, d_min the distance to the box, at least R/10, so that boxes
+    holding P come first) x the transmittance over d_min."""
+    hx, hy, hz = 0.5 * (hi[nd, 0] - lo[nd, 0]), 0.5 * (hi[nd, 1] - lo[nd, 1]), 0.5 * (hi[nd, 2] - lo[nd, 2])
+    R2 = hx * hx + hy * hy + hz * hz
+    vx = px - 0.5 * (lo[nd, 0] + hi[nd, 0])
+    vy = py - 0.5 * (lo[nd, 1] + hi[nd, 1])
+    vz = pz - 0.5 * (lo[nd, 2] + hi[nd, 2])
+    ex, ey, ez = max(0.0, abs(vx) - hx), max(0.0, abs(vy) - hy), max(0.0, abs(vz) - hz)
+    dmin2 = max(ex * ex + ey * ey + ez * ez, 0.01 * R2, 1e-30)
+    return (power[nd, 0] + power[nd, 1] + power[nd, 2]) * R2 / dmin2 * math.exp(-st_min * math.sqrt(dmin2))
+
+
+@njit(inline="always", cache=True)
+def _heap_push(heap, n, key, e):
+    heap[n] = e
+    k = n
+    while k > 0:
+        p = (k - 1) >> 1
+        if key[heap[p]] >= key[heap[k]]:
+            break
+        heap[p], heap[k] = heap[k], heap[p]
+        k = p
+    return n + 1
+
+
+@njit(inline="always", cache=True)
+def _heap_pop(heap, n, key):
+    """Removes the top (largest key); returns the new size."""
+    n -= 1
+    heap[0] = heap[n]
+    k = 0
+    while True:
+        a, b = 2 * k + 1, 2 * k + 2
+        m = k
+        if a < n and key[heap[a]] > key[heap[m]]:
+            m = a
+        if b < n and key[heap[b]] > key[heap[m]]:
+            m = b
+        if m == k:
+            break
+        heap[m], heap[k] = heap[k], heap[m]
+        k = m
+    return n
+
+
+@njit(inline="always", cache=True)
+def _importance(x, y, z, dx, dy, dz, align, power, ext2, q, kind, g, st_min):
+    """How much a source (a node: centroid, mean direction with alignment, power summed over RGB, squared extent)
+    may give double scattering at q (Query): power x lobe toward P x phase toward the camera x e^-sigma r / r^2,
+    r^2 at least the extent. Positive for every phase function here (none vanishes)."""
+    rx, ry, rz = q.x - x, q.y - y, q.z - z
+    r2 = rx * rx + ry * ry + rz * rz
+    r = math.sqrt(r2)
+    if r > 0.0:
+        mx, my, mz = rx / r, ry / r, rz / r
+    else:
+        mx, my, mz = q.wx, q.wy, q.wz
+    lobe = align * phase_eval(kind, g, dx * mx + dy * my + dz * mz) + (1.0 - align) * INV_4PI
+    return power * lobe * phase_eval(kind, g, mx * q.wx + my * q.wy + mz * q.wz) * math.exp(-st_min * r) / max(r2, ext2)
+
+
+@njit(inline="always", cache=True)
+def _sample_importance(i, vs, q, kind, g, st_min, ext_min2):
+    """_importance of volume sample i (its own direction, fully aligned; extent at least its beam's radius and
+    half its length, and ext_min)."""
+    pw = vs.scat[i, 0] + vs.scat[i, 1] + vs.scat[i, 2]
+    return _importance(vs.centre[i, 0], vs.centre[i, 1], vs.centre[i, 2], vs.dir[i, 0], vs.dir[i, 1], vs.dir[i, 2],
+                       1.0, pw, max(vs.rb[i] ** 2, 0.25 * vs.len[i] ** 2, ext_min2), q, kind, g, st_min)
+
+
+@njit(cache=True)
+def _representative(nd, vs, q, kind, g, st_min, ext_min2, u):
+    """A sample of node nd drawn by descending with probabilities half proportional to each child's _importance
+    and half to its power, then likewise among the leaf's samples (a light tree, after Conty Estevez and Kulla
+    2018, with a defensive mixture): sources whose lobes point at P and whose P-side phase points at the camera
+    are found far more often than by power alone (g = 0.9: lobes 200x their mean), and no sample's weight exceeds
+    twice its power-proportional one (importance alone, misjudged near P, made fireflies). Returns (sample,
+    1 / its probability)."""
+    tree, v_scat = vs.tree, vs.scat
+    order, lo, hi, centre, dirsum, power = tree[0], tree[1], tree[2], tree[3], tree[4], tree[5]
+    first_child, n_children, start, end = tree[6], tree[7], tree[8], tree[9]
+    imp = np.empty(8)
+    pws = np.empty(8)
+    prob = 1.0
+    while first_child[nd] >= 0:
+        f0, nc = first_child[nd], n_children[nd]
+        total = 0.0
+        ptotal = 0.0
+        for k in range(nc):
+            ch = f0 + k
+            pw = power[ch, 0] + power[ch, 1] + power[ch, 2]
+            pws[k] = max(pw, 0.0)
+            ptotal += pws[k]
+            imp[k] = 0.0
+            if pw <= 0.0:
+                continue
+            sx, sy, sz = dirsum[ch, 0], dirsum[ch, 1], dirsum[ch, 2]
+            sn = math.sqrt(sx * sx + sy * sy + sz * sz)
+            if sn > 0.0:
+                dx, dy, dz, a = sx / sn, sy / sn, sz / sn, min(1.0, sn / pw)
+            else:
+                dx, dy, dz, a = 0.0, 0.0, 1.0, 0.0
+            hx, hy, hz = hi[ch, 0] - lo[ch, 0], hi[ch, 1] - lo[ch, 1], hi[ch, 2] - lo[ch, 2]
+            imp[k] = _importance(centre[ch, 0], centre[ch, 1], centre[ch, 2], dx, dy, dz, a, pw,
+                                 0.25 * (hx * hx + hy * hy + hz * hz), q, kind, g, st_min)
+            total += imp[k]
+        if not ptotal > 0.0:
+            return -1, 0.0
+        for k in range(nc):  # the mixture, in place
+            imp[k] = 0.5 * pws[k] / ptotal + (0.5 * imp[k] / total if total > 0.0 else 0.5 * pws[k] / ptotal)
+        acc = 0.0
+        pick = -1
+        for k in range(nc):
+            if imp[k] > 0.0:
+                pick = k
+                if u < acc + imp[k]:
+                    break
+            acc += imp[k]
+        acc = 0.0
+        for k in range(pick):
+            acc += imp[k]
+        u = min(max((u - acc) / imp[pick], 0.0), 1.0 - 1e-16)
+        prob *= imp[pick]
+        nd = f0 + pick
+    total = 0.0
+    ptotal = 0.0
+    for k in range(start[nd], end[nd]):
+        i = order[k]
+        ptotal += v_scat[i, 0] + v_scat[i, 1] + v_scat[i, 2]
+        total += _sample_importance(i, vs, q, kind, g, st_min, ext_min2)
+    if not ptotal > 0.0:
+        return -1, 0.0
+    acc = 0.0
+    last = -1
+    last_w = 0.0
+    for k in range(start[nd], end[nd]):
+        i = order[k]
+        pw = v_scat[i, 0] + v_scat[i, 1] + v_scat[i, 2]
+        w = 0.5 * pw / ptotal
+        if total > 0.0:
+            w += 0.5 * _sample_importance(i, vs, q, kind, g, st_min, ext_min2) / total
+        else:
+            w += 0.5 * pw / ptotal
+        if w > 0.0:
+            last, last_w = i, w
+            if u < acc + w:
+                return i, 1.0 / (prob * w)
+        acc += w
+    if last < 0:
+        return -1, 0.0
+    return last, 1.0 / (prob * last_w)
+
+
+@njit(cache=True)
+def _cut_estimate(heap, hn, node_of, vs, med, q, rclamp, do_double, do_multiple, out_d, out_m, rng, ri, split):
+    """Each node of the cut contributes one representative sample, weighted by 1 / its probability (unbiased for
+    the node's sum): drawn by importance toward P, by double scattering's kernel for either term (split:
+    near_weight's; a far part needs no importance closer than half its radius; drawn by power, the multiple
+    term's rare sources near P came with a node's whole weight). Returns the samples evaluated."""
+    power = vs.tree[5]
+    sig_a, sig_s = med.sigma_a, med.sigma_s
+    st_min = min(sig_a[0] + sig_s[0], min(sig_a[1] + sig_s[1], sig_a[2] + sig_s[2]))
+    od = np.zeros(3)
+    om = np.zeros(3)
+    n = 0
+    for h in range(hn):
+        nd = node_of[heap[h]]
+        if power[nd, 0] + power[nd, 1] + power[nd, 2] <= 0.0:
+            continue
+        i, scale = _representative(nd, vs, q, med.phase, med.g, st_min, 0.25 * split * split, rand(rng, ri))
+        if i < 0:
+            continue
+        for c in range(3):
+            od[c] = 0.0
+            om[c] = 0.0
+        sample_terms(i, vs, med, q, rclamp, do_double, do_multiple, split, od, om)
+        n += 1
+        for c in range(3):
+            out_d[c] += scale * od[c]
+            out_m[c] += scale * om[c]
+    return n
+
+
+@njit(cache=True)
+def _near_field(vs, med, q, rclamp, out_d, out_m):
+    """Double scattering's near part (near_weight with split = vs.r_near) from every sample whose segment passes
+    within r_near of P: the octree's boxes widened by r_near, walked like single scattering's. Returns the
+    samples evaluated."""
+    tree, v_start, v_dir, v_len = vs.tree, vs.start, vs.dir, vs.len
+    order, start, end = tree[0], tree[8], tree[9]
+    stack = np.empty(LEAF_WALK_STACK, np.int64)
+    sp = np.ones(1, np.int64)
+    stack[0] = 0
+    n = 0
+    R = vs.r_near
+    while True:
+        nd = next_leaf(tree, stack, sp, q.x, q.y, q.z, R)
+        if nd < 0:
+            break
+        for k in range(start[nd], end[nd]):
+            i = order[k]
+            qx, qy, qz = q.x - v_start[i, 0], q.y - v_start[i, 1], q.z - v_start[i, 2]
+            t = min(max(qx * v_dir[i, 0] + qy * v_dir[i, 1] + qz * v_dir[i, 2], 0.0), v_len[i])
+            rx, ry, rz = qx - t * v_dir[i, 0], qy - t * v_dir[i, 1], qz - t * v_dir[i, 2]
+            if rx * rx + ry * ry + rz * rz >= R * R:
+                continue
+            n += 1
+            sample_terms(i, vs, med, q, rclamp, True, False, R, out_d, out_m)
+    return n
+
+
+@njit(cache=True)
+def double_multiple(vs, med, q, cut_size, rclamp, do_double, do_multiple, out_d, out_m, rng, ri):
+    """Adds double (out_d) and multiple (out_m) scattering at q (Query) from the volume samples vs (VolumeSamples)
+    of med (Medium), by the stochastic light cut of the module docstring; rclamp: the smallest extent of a
+    source's ball (scene units). With vs.r_near > 0 double scattering's kernel is split (sources.near_weight):
+    its part within r_near of P is summed over every sample there, the cut takes the rest. rng[ri] is the random
+    state. Returns the number of samples evaluated (the cost)."""
+    tree = vs.tree
+    order, lo, hi, power = tree[0], tree[1], tree[2], tree[5]
+    first_child, n_children, start, end = tree[6], tree[7], tree[8], tree[9]
+    if first_child.shape[0] == 0:
+        return 0
+    sig_a, sig_s = med.sigma_a, med.sigma_s
+    st_min = min(sig_a[0] + sig_s[0], min(sig_a[1] + sig_s[1], sig_a[2] + sig_s[2]))
+    cap = min(CUT_CAP, 8 * cut_size + 64)
+    node_of = np.empty(cap, np.int64)
+    key = np.empty(cap)
+    heap = np.empty(cap, np.int64)
+    free = np.empty(cap, np.int64)
+    node_of[0] = 0
+    key[0] = 0.0
+    hn = _heap_push(heap, 0, key, 0)
+    n_slot, n_free, n_eval, n_refined = 1, 0, 0, 0
+    ms_cut = cut_size // MULTIPLE_CUT_SHARE
+    ms_pending = do_multiple
+    r_near = vs.r_near
+    split = -r_near if do_double and r_near > 0.0 else 0.0
+    if split < 0.0:
+        n_eval += _near_field(vs, med, q, rclamp, out_d, out_m)
+    while hn > 0:
+        if ms_pending and n_refined >= ms_cut:
+            n_eval += _cut_estimate(heap, hn, node_of, vs, med, q, rclamp, False, True, out_d, out_m, rng, ri, 0.0)
+            ms_pending = False
+        if n_refined >= cut_size or not (do_double or ms_pending):
+            break
+        e = heap[0]
+        nd = node_of[e]
+        if first_child[nd] >= 0 and hn - 1 + n_children[nd] > cap:
+            break
+        n_refined += 1
+        hn = _heap_pop(heap, hn, key)
+        free[n_free] = e
+        n_free += 1
+        if first_child[nd] < 0:  # a leaf: its samples exactly
+            n_eval += end[nd] - start[nd]
+            for k in range(start[nd], end[nd]):
+                sample_terms(order[k], vs, med, q, rclamp, do_double, ms_pending, split, out_d, out_m)
+            continue
+        for ch in range(first_child[nd], first_child[nd] + n_children[nd]):
+            if n_free > 0:
+                n_free -= 1
+                e = free[n_free]
+            else:
+                e = n_slot
+                n_slot += 1
+            node_of[e] = ch
+            key[e] = _node_priority(ch, lo, hi, power, q.x, q.y, q.z, st_min)
+            hn = _heap_push(heap, hn, key, e)
+    n_eval += _cut_estimate(heap, hn, node_of, vs, med, q, rclamp, do_double, ms_pending, out_d, out_m, rng, ri,
+                            split)
+    return n_eval

@@ -1,0 +1,98 @@
+"""The point-based method's passes: each pass's light-sample set and bounced light, then the camera paths.
+
+Pass 0 uses the cached light samples (pipeline/samples.py); every later pass draws a fresh set (seed + pass, not
+cached; `light_sets` bounds them), so that the light side's sampling noise (single beams visible as streaks)
+averages out over passes like the camera side's. Each set's bounced light (bounced.py) is built from it.
+"""
+
+from __future__ import annotations
+
+import time
+from concurrent.futures import ThreadPoolExecutor
+from types import SimpleNamespace
+
+import numpy as np
+
+from pbvol_cli.geometry.raycast import TriangleCaster
+from pbvol_cli.geometry.scene_build import BuiltScene
+from pbvol_cli.multiple_scattering.table import empty_table
+from pbvol_cli.pointbased.bounced import BOUNCED_KERNEL, bounced_samples
+from pbvol_cli.pointbased.camera_pass import render_pbl
+from pbvol_cli.pointbased.gather import GatherSettings
+from pbvol_cli.pointbased.light_samples import place_light_samples
+from pbvol_cli.pointbased.volume_samples import SAMPLE_KEYS, SampleSet, returned_samples
+
+TABLE_COMPONENTS = ("multiple", "bounced")  # the components that look the multiple-scattering table up
+
+
+def kernel_tables(tables: list) -> tuple:
+    """A medium's tables (MSTable or None per RGB channel) expanded for the kernels (MSTable.render_args), once for
+    every pass: a channel without a table takes another channel's (its extinction is 0: nothing looks it up) or
+    an empty one."""
+    filler = next((t for t in tables if t is not None), None) or empty_table()
+    return tuple((t or filler).render_args() for t in tables)
+
+
+def render_passes(built: BuiltScene, samples, tables: dict, pbl, seed: int, spp: int, threads: int, progress=None,
+                  time_limit: float | None = None):
+    """Renders spp passes of the point-based method (no pass starts after time_limit seconds). samples: the cached
+    LightSamples of pass 0 (None: no medium); tables: {medium: [MSTable or None] x 3}; pbl: config.PblSettings
+    (its components included).
+    Returns (image, layers, stats, timings): render_pbl's, and the seconds spent on the later passes' light
+    samples and on the bounced samples."""
+    expanded = {m: kernel_tables(t) for m, t in tables.items()}
+    timings = {"pass_samples_s": 0.0, "bounced_s": 0.0}
+
+    def media_for_pass(p: int) -> dict:
+        if samples is None:
+            return {}
+        current = samples
+        if p > 0 and pbl.light_sets != 1 and (pbl.light_sets == 0 or p < pbl.light_sets):
+            t = time.perf_counter()
+            current = place_light_samples(built, pbl.surface_samples, pbl.segments_per_beam,
+                                          pbl.max_internal_reflections, pbl.max_layers, seed + p, threads)
+            timings["pass_samples_s"] += time.perf_counter() - t
+        elif p > 0 and pbl.light_sets > 1:
+            return media_for_pass(p % pbl.light_sets)
+        lit = {m: SampleSet(current, m, built.media, expanded[m], pbl.beam_width) for m in expanded}
+        t = time.perf_counter()
+        bounced = {m: _bounced_set(built, current, m, lit[m], expanded[m], pbl, seed + p, threads) for m in lit}
+        timings["bounced_s"] += time.perf_counter() - t
+        return {m: (lit[m], bounced[m]) for m in lit}
+
+    image, layers, stats = render_pbl(built, media_for_pass, spp, seed, pbl, threads, progress,
+                                      time_limit=time_limit)
+    return image, layers, stats, timings
+
+
+def _bounced_set(built, samples, m: int, lit: SampleSet, tables: tuple, pbl, seed: int, threads: int):
+    """The bounced samples of medium m as a SampleSet, or None: scattered light that its boundary reflects back
+    (bounced.py) and scattered light that left it and the scene sends back in (the light samples' v_returned
+    part, light_samples._indirect)."""
+    if "bounced" not in pbl.components:
+        return None
+    # (their cross-sections scaled so that the bounced samples' kernel keeps the lights' beams' width)
+    back = returned_samples(samples, m, (pbl.beam_width / BOUNCED_KERNEL) ** 2)
+    b = None
+    if pbl.bounce_generations > 0 and lit.count > 0:
+        # the returned light's own reflections on the boundary too
+        extra = SampleSet(back, m, built.media, tables, BOUNCED_KERNEL) if len(back.v_len) else None
+        # the light arriving at the boundary points: one point per gather ray for each estimator (the reflected
+        # light is smooth; the boundary points average it)
+        gather = GatherSettings(1, pbl.cut_size, pbl.clamp, True, True, True, 1, 1)
+        caster = TriangleCaster(built.vertices, built.faces, threads)
+        pool = ThreadPoolExecutor(threads) if threads > 1 else None
+        try:
+            b = bounced_samples(built, caster, pool, threads, m, lit,
+                                lambda smp: SampleSet(smp, m, built.media, tables, pbl.beam_width),
+                                pbl.bounce_samples, pbl.bounce_generations, max(1, pbl.segments_per_beam // 4),
+                                pbl.max_internal_reflections, gather, seed, extra)
+        finally:
+            caster.close()
+            if pool is not None:
+                pool.shutdown()
+    if b is not None:
+        back = SimpleNamespace(**{k: np.concatenate([getattr(b, k), getattr(back, k)]) for k in SAMPLE_KEYS})
+    if len(back.v_len) == 0:
+        return None
+    return SampleSet(back, m, built.media, tables, BOUNCED_KERNEL)

@@ -1,0 +1,168 @@
+"""A volume sample as a source of double and multiple scattering at a camera point P (Wang et al. 2016, eqs. 5-6).
+
+A volume sample scatters the power Phi^s = Phi sigma_s / sigma_t (1 - e^(-sigma_t l)) (W) along its segment, with
+intensity Phi^s p(d . m) toward direction m. At P, toward the propagation direction w (W m^-3 sr^-1, per channel):
+- double:   sigma_s p(m . w) Phi^s p(d . m) <e^(-sigma_t r) / r^2>, m = (P - x) / r, the average <> over a ball of
+            the source's extent (inverse_square.attenuated_inv_r2_ball) rather than a clamped 1/r^2;
+- multiple: Phi^s sigma_t^3 S_table(sigma_t (P - x), w) in the frame of (x, d) (multiple_scattering/table.py:
+            scaled_lookup), corrected for the boundary by mirror images (source_terms).
+A segment far from P is one point source at its centre; near P, or long in mean free paths for the table, it is
+split into sub-segments, each with its exact share of the power (split_terms).
+"""
+
+import math
+from collections import namedtuple
+
+import numpy as np
+from numba import njit
+
+from pbvol_cli.multiple_scattering.table import scaled_lookup
+from pbvol_cli.physics.phase import phase_eval
+from pbvol_cli.pointbased.inverse_square import attenuated_inv_r2_ball
+from pbvol_cli.pointbased.volume_samples import ENTRY_N, ENTRY_Q, EXIT_N, EXIT_Q
+
+Source = namedtuple("Source", ["x", "y", "z", "dx", "dy", "dz", "pr", "pg", "pb", "extent"])
+Source.__doc__ = """A point source: position, unit direction of its beam, scattered power (RGB, W), and the radius of
+the ball its double scattering is smeared over (scene units)."""
+
+IMAGE_EXTRAPOLATION = 0.25  # transport mean free paths by which the image planes lie beyond the boundary
+NEAR_SUB = 8  # sub-points along a segment that is close to P (double scattering)
+MS_CELL = 0.1  # mean free paths: segments longer than this are split for the multiple-scattering look-up
+
+
+@njit(inline="always", cache=True)
+def near_weight(r, split):
+    """The share of double scattering's kernel at distance r that a pass takes: split = 0, all of it; split = R > 0,
+    the near field's, 1 within R/2 falling linearly to 0 at R (summed over every source there: light_cut's near
+    pass); split = -R, the rest (by the stochastic cut). The two parts sum to 1 at every r."""
+    if split == 0.0:
+        return 1.0
+    R = abs(split)
+    s = 1.0 if r <= 0.5 * R else (2.0 * (1.0 - r / R) if r < R else 0.0)
+    return s if split > 0.0 else 1.0 - s
+
+
+@njit(inline="always", cache=True)
+def transport_share(kind, g):
+    """1 - mean cosine of the phase function: sigma_t' = sigma_a + this x sigma_s (Henyey-Greenstein and Schlick:
+    g; the others are treated as symmetric)."""
+    return 1.0 - g if kind == 1 or kind == 2 else 1.0
+
+
+@njit(cache=True)
+def source_terms(src, plane, med, q, rclamp, do_double, do_multiple, tabs, split, out_d, out_m):
+    """Double (into out_d) and multiple (into out_m) scattering at q (Query) from src (Source) in med (Medium).
+
+    plane (PLANE_COLS,): the boundary's tangent planes n . x = q where the source's beam entered and leaves (normals
+    outward, q = inf: none), the nearer of which is the source's boundary plane. The ball of double scattering
+    shrinks to the source's depth below that plane, down to half its radius (a ball poking out of the medium puts
+    part of the source's light where no camera point gathers it; shrunk further, the bounced layer's gather on the
+    boundary itself met spikes), and is at least rclamp wide. split: which part of double scattering
+    (near_weight); tabs: the medium's three tables (R, G, B)."""
+    x, y, z, dx, dy, dz = src.x, src.y, src.z, src.dx, src.dy, src.dz
+    px, py, pz, wx, wy, wz, pplane = q.x, q.y, q.z, q.wx, q.wy, q.wz, q.plane
+    sig_a, sig_s, kind, g = med.sigma_a, med.sigma_s, med.phase, med.g
+    nx, ny, nz, qn = plane[ENTRY_N], plane[ENTRY_N + 1], plane[ENTRY_N + 2], plane[ENTRY_Q]
+    # the plane nearer this point, not the segment's centre: the last segment of a beam spans from near its entry
+    # to its exit, and its points near the entry mirrored in the exit plane kept nearly all of the table's light
+    if (plane[EXIT_Q] - (plane[EXIT_N] * x + plane[EXIT_N + 1] * y + plane[EXIT_N + 2] * z)
+            < qn - (nx * x + ny * y + nz * z)):
+        nx, ny, nz, qn = plane[EXIT_N], plane[EXIT_N + 1], plane[EXIT_N + 2], plane[EXIT_Q]
+    rx, ry, rz = px - x, py - y, pz - z
+    r2 = rx * rx + ry * ry + rz * rz
+    r = math.sqrt(r2)
+    part = near_weight(r, split) if do_double else 0.0
+    if part > 0.0 and r > 0.0:
+        c = max(rclamp, src.extent)
+        if qn < np.inf:
+            c = max(rclamp, min(src.extent, max(qn - (nx * x + ny * y + nz * z), 0.5 * src.extent)))
+        mx, my, mz = rx / r, ry / r, rz / r
+        lobe = phase_eval(kind, g, dx * mx + dy * my + dz * mz)
+        f = phase_eval(kind, g, mx * wx + my * wy + mz * wz) * lobe * part
+        out_d[0] += sig_s[0] * src.pr * f * attenuated_inv_r2_ball(r, c, sig_a[0] + sig_s[0])
+        out_d[1] += sig_s[1] * src.pg * f * attenuated_inv_r2_ball(r, c, sig_a[1] + sig_s[1])
+        out_d[2] += sig_s[2] * src.pb * f * attenuated_inv_r2_ball(r, c, sig_a[2] + sig_s[2])
+    if do_multiple:
+        # The table's medium is infinite. Corrected by the method of images twice: a mirror image of the source
+        # (lobe mirrored) behind the source's boundary plane and another behind P's (the camera segment's nearer
+        # end plane), each plane moved out by IMAGE_EXTRAPOLATION transport mean free paths. Each image gives a
+        # factor f = 1 - image / table in [0, 1] (the half-space's response is never negative); P's factor enters
+        # as f_P^w, w = (1 - n . n_P) / 2: where both points are under the same plane it is the same image, counted
+        # once, while a source under the far side of a body (n_P = -n) gets both (docs/pbl.md).
+        image = qn < np.inf
+        image_p = pplane[3] < np.inf
+        dn = 2.0 * (dx * nx + dy * ny + dz * nz)
+        ex, ey, ez = dx - dn * nx, dy - dn * ny, dz - dn * nz
+        ax, ay, az = pplane[0], pplane[1], pplane[2]
+        dp = 2.0 * (dx * ax + dy * ay + dz * az)
+        fx, fy, fz = dx - dp * ax, dy - dp * ay, dz - dp * az
+        wp = 0.5 * (1.0 - (nx * ax + ny * ay + nz * az)) if image else 1.0
+        for c in range(3):
+            Pc = src.pr if c == 0 else (src.pg if c == 1 else src.pb)
+            st = sig_a[c] + sig_s[c]
+            v0 = scaled_lookup(tabs[c], Pc, st, rx, ry, rz, dx, dy, dz, wx, wy, wz)
+            if v0 <= 0.0:
+                continue
+            v = v0
+            zb = IMAGE_EXTRAPOLATION / max(sig_a[c] + transport_share(kind, g) * sig_s[c], 1e-30)
+            if image:
+                h = 2.0 * (max(qn - (nx * x + ny * y + nz * z), 0.0) + zb)
+                vi = scaled_lookup(tabs[c], Pc, st, rx - h * nx, ry - h * ny, rz - h * nz, ex, ey, ez, wx, wy, wz)
+                v *= min(max(1.0 - vi / v0, 0.0), 1.0)
+            if image_p and wp > 0.0 and v > 0.0:
+                h = 2.0 * (max(pplane[3] - (ax * x + ay * y + az * z), 0.0) + zb)
+                vi = scaled_lookup(tabs[c], Pc, st, rx - h * ax, ry - h * ay, rz - h * az, fx, fy, fz, wx, wy, wz)
+                v *= min(max(1.0 - vi / v0, 0.0), 1.0) ** wp
+            out_m[c] += v
+
+
+@njit(cache=True)
+def sample_terms(i, vs, med, q, rclamp, do_double, do_multiple, split, out_d, out_m):
+    """Volume sample i of vs (VolumeSamples) as a source at q (split: near_weight's). Double scattering: one point
+    far from P (beyond two segment lengths); near P NEAR_SUB points along the segment, each with its exact share
+    of the power, so that 1/r^2 needs smoothing only at the beam's radius. Multiple scattering: the table is smooth
+    on the scale of its cells, so one look-up per MS_CELL mean free paths of segment."""
+    v_centre, v_len, v_dir, v_scat = vs.centre, vs.len, vs.dir, vs.scat
+    sig_a, sig_s = med.sigma_a, med.sigma_s
+    cx, cy, cz = q.x - v_centre[i, 0], q.y - v_centre[i, 1], q.z - v_centre[i, 2]
+    ln = v_len[i]
+    far = cx * cx + cy * cy + cz * cz > 4.0 * ln * ln
+    st_max = max(sig_a[0] + sig_s[0], max(sig_a[1] + sig_s[1], sig_a[2] + sig_s[2]))
+    n_ms = min(NEAR_SUB, int(math.ceil(st_max * ln / MS_CELL))) if do_multiple else 0
+    if far or not do_double:
+        dd = do_double and far  # (an expression among so many arguments trips numba's bytecode analysis)
+        whole = Source(v_centre[i, 0], v_centre[i, 1], v_centre[i, 2], v_dir[i, 0], v_dir[i, 1], v_dir[i, 2],
+                       v_scat[i, 0], v_scat[i, 1], v_scat[i, 2], max(0.5 * ln, vs.rb[i]))
+        if n_ms <= 1:
+            source_terms(whole, vs.plane[i], med, q, rclamp, dd, do_multiple, vs.tables, split, out_d, out_m)
+            return
+        if far and do_double:
+            source_terms(whole, vs.plane[i], med, q, rclamp, True, False, vs.tables, split, out_d, out_m)
+        split_terms(i, n_ms, vs, med, q, rclamp, False, True, split, out_d, out_m)
+        return
+    # near, double wanted
+    if n_ms == NEAR_SUB:
+        split_terms(i, NEAR_SUB, vs, med, q, rclamp, True, do_multiple, split, out_d, out_m)
+        return
+    split_terms(i, NEAR_SUB, vs, med, q, rclamp, True, False, split, out_d, out_m)
+    if n_ms > 0:
+        split_terms(i, n_ms, vs, med, q, rclamp, False, True, split, out_d, out_m)
+
+
+@njit(cache=True)
+def split_terms(i, n, vs, med, q, rclamp, do_double, do_multiple, split, out_d, out_m):
+    """Volume sample i as n point sources at the midpoints of equal sub-segments, each with its exact share of the
+    power scattered, sigma_s/sigma_t (e^-st t0 - e^-st t1) times the power entering the segment."""
+    v_start, v_dir, v_power = vs.start, vs.dir, vs.power
+    sig_a, sig_s = med.sigma_a, med.sigma_s
+    ln = vs.len[i]
+    pw = np.empty(3)
+    for k in range(n):
+        t0, t1 = ln * k / n, ln * (k + 1) / n
+        for c in range(3):
+            st = sig_a[c] + sig_s[c]
+            pw[c] = v_power[i, c] * (sig_s[c] / st * (math.exp(-st * t0) - math.exp(-st * t1)) if st > 0.0 else 0.0)
+        tm = 0.5 * (t0 + t1)
+        sub = Source(v_start[i, 0] + tm * v_dir[i, 0], v_start[i, 1] + tm * v_dir[i, 1], v_start[i, 2] + tm * v_dir[i, 2],
+                     v_dir[i, 0], v_dir[i, 1], v_dir[i, 2], pw[0], pw[1], pw[2], max(0.5 * (t1 - t0), vs.rb[i]))
+        source_terms(sub, vs.plane[i], med, q, rclamp, do_double, do_multiple, vs.tables, split, out_d, out_m)

@@ -1,0 +1,124 @@
+"""A medium's volume samples as the estimators take them, and the other bundles the kernels take (Medium, Query).
+
+A volume sample v is a segment of a beam (light_samples.py, beams.py): start s_v, unit direction d_v, length l_v,
+RGB beam power Phi_v (W) at its start, cross-section A_v (scene units^2), and the boundary's tangent planes where
+its beam entered and leaves (PLANE_* columns of beams.py). Prepared here (SampleSet) for the kernels:
+- scattered power Phi^s_v = Phi_v sigma_s / sigma_t (1 - e^(-sigma_t l_v)) (W), the power a source emits;
+- single scattering's kernel disc: area A_v x beam_width^2;
+- the beam's radius rb (double scattering's smoothing), the segment's centre;
+- an octree over the centres, each sample's box holding its kernel disc along the segment (continued at the
+  boundary by estimators' END_EXTENSION), nodes aggregating scattered power;
+- double scattering's near-field radius (near_field_radius) and the medium's three multiple-scattering tables.
+"""
+
+from __future__ import annotations
+
+from collections import namedtuple
+from types import SimpleNamespace
+
+import numpy as np
+
+from pbvol_cli.geometry.scene_build import MED_G, MED_PHASE, MED_SIGMA_A, MED_SIGMA_S
+from pbvol_cli.pointbased.octree import build_octree
+
+END_EXTENSION = 3.0  # kernel radii by which segments on the boundary are continued (single scattering)
+
+# The bundles the numba kernels take (namedtuples: numba passes them by value and reads fields by name).
+VolumeSamples = namedtuple("VolumeSamples", ["tree", "start", "dir", "len", "power", "area", "centre", "scat", "rb",
+                                             "ends", "plane", "tables", "r_near"])
+VolumeSamples.__doc__ = """A medium's volume samples for the kernels: tree (Octree.arrays()), per-sample start (m, 3),
+dir (m, 3), len (m,), power (m, 3) at the start, area (m,) of single scattering's kernel disc, centre (m, 3), scat
+(m, 3) scattered power, rb (m,) beam radius, ends (m,) (1: starts on the boundary, 2: ends there), plane (m, PLANE_COLS)
+boundary planes; tables: the medium's three MSTable.render_args() (R, G, B); r_near: double scattering's
+near-field radius (scene units)."""
+Medium = namedtuple("Medium", ["sigma_a", "sigma_s", "phase", "g"])
+Medium.__doc__ = """A homogeneous medium for the kernels: sigma_a, sigma_s (3,) in 1/scene unit, phase kind, g."""
+Query = namedtuple("Query", ["x", "y", "z", "wx", "wy", "wz", "plane"])
+Query.__doc__ = """The point P where in-scattered radiance is wanted, toward the propagation direction w (toward the
+camera), and P's boundary plane (n_x, n_y, n_z, q) with n . x = q on it (q = inf: none; NO_PLANE)."""
+NO_PLANE = np.array([0.0, 0.0, 1.0, np.inf])
+
+# a boundary-plane pair (a volume sample's, a camera segment's): the plane n . x = q where the beam or segment enters
+# (starts) and where it leaves (ends), each as the normal n (3, pointing out of the medium) and q (inf: no plane)
+ENTRY_N, ENTRY_Q, EXIT_N, EXIT_Q = 0, 3, 4, 7
+PLANE_COLS = 8
+
+SAMPLE_KEYS = ("v_start", "v_dir", "v_len", "v_power", "v_area", "v_medium", "v_ends", "v_plane")
+
+NEAR_FIELD_RADII = 3.0  # double scattering's near field (summed exactly): at most this many median beam radii,
+NEAR_FIELD_COUNT = 16.0  # and holding about this many segments (dense samples would make it costly)
+
+
+def medium_params(media: np.ndarray, m: int) -> Medium:
+    """Medium m of a built scene's media table."""
+    row = media[m]
+    return Medium(row[MED_SIGMA_A:MED_SIGMA_A + 3], row[MED_SIGMA_S:MED_SIGMA_S + 3], int(row[MED_PHASE]),
+                  float(row[MED_G]))
+
+
+def near_field_radius(start, dirs, length, rb) -> float:
+    """Radius R of double scattering's exactly summed near field (light_cut.double_multiple): NEAR_FIELD_RADII
+    median beam radii, smaller where the segments are so dense that more than NEAR_FIELD_COUNT would pass within R
+    of a point (segments per volume n, median length l: n (pi R^2 l + 4/3 pi R^3), the volume within R of a
+    segment; the volume is the samples' bounding box, an over-estimate)."""
+    if len(length) == 0:
+        return 0.0
+    ends = np.concatenate([start, start + length[:, None] * dirs])
+    volume = float(np.prod(np.maximum(ends.max(axis=0) - ends.min(axis=0), 1e-9)))
+    n, ell = len(length) / volume, float(np.median(length))
+    roots = np.roots([4.0 / 3.0 * np.pi * n, np.pi * n * ell, 0.0, -NEAR_FIELD_COUNT])
+    r_count = float(max(r.real for r in roots if abs(r.imag) < 1e-9 * max(1.0, abs(r)) and r.real > 0))
+    return min(NEAR_FIELD_RADII * float(np.median(rb)), r_count)
+
+
+def returned_samples(samples, medium: int, area_scale: float = 1.0) -> SimpleNamespace:
+    """The volume samples of `medium` whose light scattered in a medium before it reached the surface samples
+    (v_returned == 1: light that left and the scene sent back; the bounced layer's), as a namespace of v_*
+    arrays, cross-sections scaled by area_scale."""
+    sel = (samples.v_medium == medium) & (samples.v_returned == 1)
+    out = SimpleNamespace(**{k: getattr(samples, k)[sel] for k in SAMPLE_KEYS})
+    out.v_area = out.v_area * area_scale
+    return out
+
+
+class SampleSet:
+    """One medium's volume samples prepared for the kernels (see the module docstring); .kernel is the bundle."""
+
+    def __init__(self, samples, medium: int, media: np.ndarray, tables: tuple, beam_width: float = 1.0):
+        """samples: LightSamples (its volume samples of light that has not scattered before reaching the surface
+        samples: v_returned == 0) or a namespace of v_* arrays (all taken); media: the built scene's media table;
+        tables: the medium's three tables as MSTable.render_args() (R, G, B)."""
+        sel = samples.v_medium == medium
+        returned = getattr(samples, "v_returned", None)
+        if returned is not None:
+            sel &= returned == 0
+        self.medium = medium_params(media, medium)
+        start = np.ascontiguousarray(samples.v_start[sel])
+        dirs = np.ascontiguousarray(samples.v_dir[sel])
+        length = np.ascontiguousarray(samples.v_len[sel])
+        power = np.ascontiguousarray(samples.v_power[sel])
+        area = np.ascontiguousarray(samples.v_area[sel]) * beam_width ** 2
+        st = self.medium.sigma_a + self.medium.sigma_s
+        safe = np.where(st > 0, st, 1.0)
+        absorbed = -np.expm1(-st[None, :] * length[:, None])
+        self.scat = power * np.where(st > 0, self.medium.sigma_s / safe, 0.0)[None, :] * absorbed
+        centre = start + 0.5 * length[:, None] * dirs
+        rb = np.sqrt(area / np.pi)  # the kernel's radius: the boxes must hold it
+        ends = np.ascontiguousarray(samples.v_ends[sel])
+        plane = np.ascontiguousarray(samples.v_plane[sel])
+        ext = END_EXTENSION * rb
+        first = start - (ext * (ends & 1 > 0))[:, None] * dirs
+        end = start + (length + ext * (ends & 2 > 0))[:, None] * dirs
+        box_lo = np.minimum(first, end) - rb[:, None]
+        box_hi = np.maximum(first, end) + rb[:, None]
+        tree = build_octree(centre, box_lo, box_hi, dirs, self.scat)
+        beam_radius = rb / beam_width
+        self.count = int(sel.sum())
+        self.kernel = VolumeSamples(tree.arrays(), start, dirs, length, power, area, centre, self.scat, beam_radius,
+                                    ends, plane, tuple(tables), near_field_radius(start, dirs, length, beam_radius))
+
+
+def scattered_share(base: SampleSet, other: SampleSet) -> float:
+    """other's scattered power relative to base's (all channels together)."""
+    a = float(base.scat.sum())
+    return float(other.scat.sum()) / a if a > 0 else 0.0

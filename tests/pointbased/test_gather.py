@@ -1,0 +1,24 @@
+"""The gather along ray segments in a medium: the segments' boundary planes."""
+
+import numpy as np
+import pytest
+
+from pbvol_cli.pointbased.gather import segment_planes
+
+
+def test_segment_planes_face_out_of_the_segment_on_either_side():
+    """A camera segment's end planes, from the surfaces' normals whichever way they point: the start plane's
+    normal faces back along the ray and the end plane's forward, both through the segment's end points; a ray
+    from the camera (NaN normal) or one that leaves the scene (t = inf) has no plane there (q = inf)."""
+    pos = np.array([[0.0, 0.0, 0.0], [1.0, 2.0, 0.5], [0.0, 0.0, 0.0]])
+    d = np.array([[0.0, 0.0, -1.0], [0.6, 0.0, 0.8], [1.0, 0.0, 0.0]])
+    t = np.array([2.0, 1.0, np.inf])
+    n_start = np.array([[0.0, 0.0, 1.0], [-0.6, 0.0, -0.8], [np.nan, np.nan, np.nan]])
+    n_end = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]])
+    pl = segment_planes(pos, d, t, n_start, n_end)
+    assert pl[0].tolist() == [0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -1.0, 2.0]  # out of the slab -2 < z < 0 both ways
+    assert pl[1, :3].tolist() == [-0.6, 0.0, -0.8] and pl[1, 3] == pytest.approx(-0.6 - 0.4)
+    assert pl[1, 4:7].tolist() == [0.0, 0.0, 1.0] and pl[1, 7] == pytest.approx(0.5 + 0.8)
+    for row, p0, p1 in ((0, pos[0], pos[0] + 2 * d[0]), (1, pos[1], pos[1] + d[1])):  # inside: n . x <= q
+        assert pl[row, :3] @ (p0 + 0.5 * (p1 - p0)) < pl[row, 3] and pl[row, 4:7] @ (p0 + 0.5 * (p1 - p0)) < pl[row, 7]
+    assert pl[2, 3] == np.inf and pl[2, 7] == np.inf

@@ -1,0 +1,94 @@
+"""The stochastic light cut: unbiased for any cut, exact when refined to every leaf."""
+
+import numpy as np
+import pytest
+
+from pbvol_cli.multiple_scattering.layout import Layout
+from pbvol_cli.multiple_scattering.table import TableSettings, build_table, empty_table
+from pbvol_cli.physics.phase import phase_eval
+from pbvol_cli.pointbased.inverse_square import attenuated_inv_r2_ball
+from pbvol_cli.pointbased.light_cut import double_multiple
+from pbvol_cli.pointbased.octree import build_octree
+from pbvol_cli.pointbased.sources import Source, source_terms
+from pbvol_cli.pointbased.volume_samples import NO_PLANE, Medium, Query, VolumeSamples
+
+SIG_S, SIG_A, G = np.array([0.6, 1.0, 2.0]), np.array([0.2, 0.5, 0.1]), 0.5
+
+
+@pytest.mark.parametrize("spread, r_near", [(0.1, 0.0), (10.0, 0.0), (10.0, 1.2)])
+def test_stochastic_light_cut_is_unbiased(spread, r_near):
+    """A cut refined down to every leaf is the exhaustive sum (the formula, summed by hand); a small cut, whose
+    nodes each contribute one random representative, averages to it (4 standard errors over 4000 estimates), for
+    nearly parallel beams (spread 0.1) and random directions, and with the near field summed apart (r_near: 58 of
+    the 400 sources within it, 2 wholly). (The deterministic cuts this replaced, node centroids with averaged
+    lobes, were 10-25% low on the oil scene's g = 0.9 samples.)"""
+    rng = np.random.default_rng(4)
+    n = 400
+    centre = rng.normal(size=(n, 3)) * 0.5
+    d = np.array([0.3, -0.2, 0.9]) + spread * rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    scat = rng.random((n, 3))
+    # segments of length 0 (points), so the formula below is exact for them
+    length, start, rb = np.zeros(n), centre.copy(), np.full(n, 0.01)
+    no_plane = np.tile([0.0, 0.0, 1.0, np.inf] * 2, (n, 1))  # no boundary (entry and exit planes at infinity)
+    tree = build_octree(centre, centre - 0.01, centre + 0.01, d, scat).arrays()
+    tabs = (empty_table().render_args(),) * 3
+    P = np.array([1.5, 0.2, -0.3])
+    w = np.array([0.0, 0.6, 0.8])
+    exact = np.zeros(3)
+    for i in range(n):
+        r = P - centre[i]
+        dist = np.linalg.norm(r)
+        m = r / dist
+        f = phase_eval(1, G, m @ w) * phase_eval(1, G, d[i] @ m)
+        exact += SIG_S * scat[i] * f * np.array([attenuated_inv_r2_ball(dist, 0.02, st) for st in SIG_S + SIG_A])
+    state = np.array([7], np.uint64)
+    out_d, out_m = np.zeros(3), np.zeros(3)
+    n_nodes = len(tree[1])
+    vs = VolumeSamples(tree, start, d, length, scat, np.zeros(n), centre, scat, rb, np.zeros(n, np.int64), no_plane,
+                       tabs, r_near)
+    med, q = Medium(SIG_A, SIG_S, 1, G), Query(*P, *w, NO_PLANE)
+    double_multiple(vs, med, q, n_nodes, 0.02, True, False, out_d, out_m, state, 0)
+    assert out_d == pytest.approx(exact, rel=1e-9)
+    runs = np.zeros((4000, 3))
+    for k in range(len(runs)):
+        double_multiple(vs, med, q, 4, 0.02, True, False, runs[k], out_m, state, 0)
+    mean, se = runs.mean(0), runs.std(0) / np.sqrt(len(runs))
+    assert np.all(runs.std(0) > 0)  # the small cut is stochastic
+    assert np.all(np.abs(mean - exact) < 4 * se), (mean, exact, se)
+
+
+def test_multiple_scattering_cut_is_unbiased_with_sources_around_the_point():
+    """The multiple term's small cut (its representatives drawn by importance toward P, as double scattering's)
+    averages to the exhaustive sum over every source (4 standard errors over 3000 estimates) for a cloud of
+    sources around P, some within a tenth of a mean free path of it, where drawing by power alone made spikes."""
+    lay = Layout(extent=10.0, n_rho=16, n_z=32, n_theta=9, n_phi=9, kill_radius=20.0)
+    table, _ = build_table(0.95, 0.3, 1, TableSettings(particles=20000, layout=lay, sh_order=8))
+    tabs = (table.render_args(),) * 3
+    sig_a, sig_s = np.full(3, 0.05), np.full(3, 0.95)
+    rng = np.random.default_rng(5)
+    n = 300
+    P = np.array([0.2, -0.1, 0.3])
+    w = np.array([0.0, 0.6, 0.8])
+    centre = P + rng.normal(size=(n, 3)) * np.where(np.arange(n) < 30, 0.1, 1.5)[:, None]
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    scat = rng.random((n, 3)) + 0.1
+    length, rb = np.zeros(n), np.full(n, 0.01)
+    no_plane = np.tile([0.0, 0.0, 1.0, np.inf] * 2, (n, 1))
+    tree = build_octree(centre, centre - 0.01, centre + 0.01, d, scat).arrays()
+    med, q = Medium(sig_a, sig_s, 1, 0.3), Query(*P, *w, NO_PLANE)
+    exact = np.zeros(3)
+    for i in range(n):
+        source_terms(Source(*centre[i], *d[i], *scat[i], 0.01), no_plane[i], med, q, 0.02, False, True, tabs, 0.0,
+                     np.zeros(3), exact)
+    assert np.all(exact > 0)
+    state = np.array([11], np.uint64)
+    runs = np.zeros((3000, 3))
+    vs = VolumeSamples(tree, centre, d, length, scat, np.zeros(n), centre, scat, rb, np.zeros(n, np.int64), no_plane,
+                       tabs, 0.0)
+    for k in range(len(runs)):
+        double_multiple(vs, med, q, 8, 0.02, False, True, np.zeros(3), runs[k], state, 0)
+    mean, se = runs.mean(0), runs.std(0) / np.sqrt(len(runs))
+    assert np.all(runs.std(0) > 0)  # the cut is stochastic
+    assert np.all(np.abs(mean - exact) < 4 * se), (mean, exact, se)

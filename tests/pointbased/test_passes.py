@@ -1,0 +1,108 @@
+"""The point-based method's passes rendered whole: components against volpath --orders, furnaces,
+reproducibility."""
+
+import numpy as np
+import pytest
+
+from conftest import build, camera, medium_sphere_scene, volpath, write_scene
+from pbvol_cli.imageio import read_exr, read_layers
+from pbvol_cli.pipeline.render import RenderOptions, render_scene
+
+
+def test_double_scattering_against_volpath_order_2(tmp_path):
+    """pbl's double layer against volpath --orders 2 (index-matched sphere, directional light).
+
+    Measured bias: image means 0.986 / 0.972 / 0.962 (R, G, B) against 2048 spp, the deficit growing with sigma_t
+    (0.8, 1.5, 2.1 /unit): the near field of the beams (1/r^2 smoothed over the beam radius), not the cut
+    (unbiased) nor the segment count. The bound is that bias (0.93..1.03) widened by 4 standard errors of the
+    two estimates' means (each from two independent halves), so a regression shows; it does not claim the
+    component is unbiased."""
+    scene = medium_sphere_scene()
+    scene["camera"]["resolution"] = [10, 10]
+    path = write_scene(tmp_path, scene)
+    halves = []
+    for seed in (1, 2):
+        render_scene(path, tmp_path / "o.exr", RenderOptions(method="pbl", components="double", cache_dir=tmp_path,
+                                                             spp=16, seed=seed, quiet=True))
+        halves.append(read_layers(tmp_path / "o.exr")["double"].mean((0, 1)))
+
+    built = build(tmp_path, scene)
+    a, b = volpath(built, spp=256, seed=1, orders="2"), volpath(built, spp=256, seed=2, orders="2")
+    ref = 0.5 * (a + b).mean((0, 1))
+    mine = 0.5 * (halves[0] + halves[1])
+    # standard errors of the two means, from their independent halves
+    se = np.hypot(np.abs(a.mean((0, 1)) - b.mean((0, 1))) / 2, np.abs(halves[0] - halves[1]) / 2) + 1e-12
+    ratio = mine / ref
+    assert np.all(ratio > 0.93 - 4 * se / ref) and np.all(ratio < 1.03 + 4 * se / ref), (ratio, se / ref)
+
+
+def test_pbl_is_reproducible_and_each_pass_draws_new_light_samples(tmp_path):
+    """The same seed gives the same image; a second pass uses a fresh light-sample set (light_sets = 0), so two
+    passes differ from one pass repeated (light_sets = 1)."""
+    scene = medium_sphere_scene(surface_samples=500, segments_per_beam=2)
+    scene["camera"]["resolution"] = [8, 8]
+    path = write_scene(tmp_path, scene)
+    imgs = []
+    for _ in range(2):
+        render_scene(path, tmp_path / "o.exr", RenderOptions(method="pbl", spp=2, cache_dir=tmp_path, quiet=True))
+        imgs.append(read_exr(tmp_path / "o.exr")[0])
+    assert np.array_equal(imgs[0], imgs[1])
+    scene["render"]["pbl"]["light_sets"] = 1
+    render_scene(write_scene(tmp_path, scene), tmp_path / "o.exr", RenderOptions(method="pbl", spp=2,
+                                                                                cache_dir=tmp_path, quiet=True))
+    assert not np.array_equal(read_exr(tmp_path / "o.exr")[0], imgs[0])
+
+
+def test_index_matched_furnace(tmp_path):
+    """A non-absorbing sphere (g = 0, 2 mean free paths across its radius) in an index-matched boundary under a
+    white sky renders the sky: pbl's layers together must give 1. Without the multiple term's image source the
+    table's infinite medium gave 2.02 (light that has left counted). The estimate is heavy-tailed: at 4 spp the
+    centre read 0.87-0.99 over seeds 1-8 (mean 0.935), at 16 spp 0.943-0.973 over seeds 1-4 (mean 0.961), so 16.
+    One camera path per pass (surface_paths = 1): in a furnace a path's in-scattering and the sky it transmits
+    are anti-correlated along the same chord, and the sum is what is tested (with 8 paths sharing one medium
+    evaluation the spread doubles: 0.915-0.974)."""
+    shape = {"type": "sphere", "radius": 1.0, "interface": "null",
+             "medium": {"albedo": 1.0, "mean_free_path": 0.5, "g": 0.0}}
+    scene = {"camera": camera((12, 12), position=(0, 0, 3.0), fov=30),
+             "render": {"spp": 16, "pbl": {"surface_paths": 1}},
+             "lights": [{"type": "environment", "radiance": 1.0}], "shapes": [shape]}
+    path = write_scene(tmp_path, scene)
+    render_scene(path, tmp_path / "o.exr", RenderOptions(method="pbl", cache_dir=tmp_path, quiet=True))
+    img = read_exr(tmp_path / "o.exr")[0]
+    centre = img[4:8, 4:8].mean()
+    print("index-matched furnace, centre:", centre)
+    assert abs(centre - 1.0) < 0.05, centre
+
+
+@pytest.mark.xfail(strict=True, reason="known: the thick isotropic furnace behind eta 1.44 renders ~1.18 (README, "
+                   "Furnace): the multiple term is a few % high in a thick body (1.03 index-matched) and the "
+                   "bounced generations compound it")
+def test_thick_isotropic_furnace_behind_a_dielectric_boundary(tmp_path):
+    """A non-absorbing isotropic sphere 7.7 mean free paths in radius behind eta = 1.44 under a white sky must
+    render 1 at its centre. It rendered about 4 (bounced layer ~3.5) until each source point took its own boundary
+    plane and the table its window, about 1.8 then, 1.4 once single scattering's smoothing bias went (bounced
+    ~0.8), 1.37 with the multiple term's cut drawn by importance, 1.18 with P's plane as a second image (at
+    2 spp the centre's noise is about 0.1: 8 spp here): an open bias, kept here as an expected failure
+    so that its fix shows (strict: the test fails once this passes, and the marker must go)."""
+    shape = {"type": "sphere", "radius": 1.0, "interface": "dielectric", "eta": 1.44,
+             "medium": {"albedo": 1.0, "mean_free_path": 0.13, "g": 0.0}}
+    scene = {"camera": camera((16, 16), position=(0, 0, 3.0), fov=30), "render": {"spp": 8},
+             "lights": [{"type": "environment", "radiance": 1.0}], "shapes": [shape]}
+    path = write_scene(tmp_path, scene)
+    render_scene(path, tmp_path / "o.exr", RenderOptions(method="pbl", cache_dir=tmp_path, quiet=True))
+    centre = read_exr(tmp_path / "o.exr")[0][5:11, 5:11].mean()
+    print("thick isotropic furnace behind eta 1.44, centre:", centre)
+    assert abs(centre - 1.0) < 0.1, centre
+
+
+def test_time_limit_stops_after_whole_passes(tmp_path):
+    """With a time limit no pass starts after it: the first pass always runs, and the image is the mean of the
+    passes done (its metadata says how many)."""
+    scene = medium_sphere_scene(surface_samples=500, segments_per_beam=2, bounce_samples=64)
+    scene["camera"]["resolution"] = [8, 8]
+    path = write_scene(tmp_path, scene)
+    summary = render_scene(path, tmp_path / "o.exr", RenderOptions(method="pbl", spp=50, time_limit=0.001,
+                                                                  cache_dir=tmp_path, quiet=True))
+    img, meta = read_exr(tmp_path / "o.exr")
+    assert summary["spp"] == meta["spp"] == 1
+    assert np.isfinite(img).all() and img.sum() > 0
