@@ -119,7 +119,7 @@ def reference(scene: Path, res: str, spp: int, threads: int, cache: Path):
 
     refdir = cache / "bench-refs"
     refdir.mkdir(parents=True, exist_ok=True)
-    halves, meta_hash = [], None
+    halves = []
     for seed in (101, 102):
         out = refdir / f"{scene.stem}_{res}_{spp // 2}spp_seed{seed}.exr"
         if out.exists():

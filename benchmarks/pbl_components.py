@@ -22,8 +22,6 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from pbl_bench import ROOT, RENDER, _run, rel_mse  # noqa: E402
 
-ORDERS = {"single": "1", "double": "2", "multiple": "3+"}
-
 ORDERS_RENDER = RENDER.replace("RenderOptions(spp=int(spp), seed=int(seed), resolution=res, **kw)",
                                "RenderOptions(spp=int(spp), seed=int(seed), resolution=res, orders=sys.argv[9], **kw)")
 

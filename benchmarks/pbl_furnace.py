@@ -4,9 +4,10 @@
     .venv/bin/python benchmarks/pbl_furnace.py
 
 Prints the mean over the central pixels and each layer, for an index-matched boundary and for eta = 1.5, at mean
-free paths 0.5 and 2 (--shape slab: a thick slab seen from above instead). The multiple term subtracts a mirror-image source at the boundary plane nearest each volume
-sample (the table's medium is infinite), and the bounced layer adds what a dielectric boundary reflects; both are
-approximations, and the numbers measure them. volpath passes it exactly (tests/render/test_volpath.py).
+free paths 0.5 and 2 (--shape slab: a thick slab seen from above instead). The multiple term corrects the table's
+infinite medium by mirror-image sources behind the boundary planes nearest each source point and each camera point
+(docs/pbl.md), and the bounced layer adds what a dielectric boundary reflects; both are approximations, and the
+numbers measure them. volpath passes it exactly (tests/render/test_volpath.py).
 """
 
 import sys

@@ -5,7 +5,7 @@
 
 A box of the material (30 x 10 x 30 scene units, top face at y = 0) with a null boundary, lit by a sphere light
 (radius 3, 30 units away) at the given incidences, seen from above at 45 degrees. The boundary is a plane, so
-the multiple term's mirror-image source (estimators._source) is placed exactly as the method of images would;
+the multiple term's mirror-image source (pointbased/sources.py: source_terms) is placed exactly as the method of images would;
 what remains is the image's distance to the boundary (on it: the table's light that the boundary would
 return is subtracted too strongly where light diffuses far, e.g. wax's red). Prints, per component, the image
 mean of pbl's layer over volpath's: single / order 1, double / order 2, multiple / 3+.

@@ -1,6 +1,7 @@
-"""Scene and material files: Pydantic models, TOML in and out, and one-line errors.
+"""Scene and material files: Pydantic models, TOML in, and one-line errors (docs/scene-format.md is generated
+from these models: config_reference.py).
 
-Conventions (also in the README):
+Conventions:
 - Lengths are in scene units; a scene states what one unit is (``unit = "mm"`` etc.).
 - A material gives, per RGB channel, either (albedo, mean_free_path), (sigma_a, sigma_s), or
   (sigma_s_reduced, sigma_a) as in Jensen et al. 2001, where sigma_s = sigma_s_reduced / (1 - g).
@@ -34,7 +35,6 @@ from pbvol_cli.errors import ConfigError
 
 # Lengths of the units a scene or a material may be expressed in, in metres.
 UNIT_METRES = {"mm": 1e-3, "cm": 1e-2, "m": 1.0, "um": 1e-6, "in": 0.0254}
-PHASE_FUNCTIONS = ("isotropic", "hg", "schlick", "rayleigh", "mie_hazy", "mie_murky")
 
 
 def _rgb(value: Any) -> Any:
@@ -598,7 +598,8 @@ def _describe(err: ValidationError) -> tuple[str, str]:
         msg = f"unknown type {e['ctx'].get('tag')!r}; expected one of {tags}"
     elif e["type"] == "union_tag_not_found":
         msg = "missing 'type' field"
-    more = len({tuple(x["loc"]) for x in errors}) - (1 if not in_material else len({tuple(x["loc"]) for x in in_material}))
+    shown = 1 if not in_material else len({tuple(x["loc"]) for x in in_material})
+    more = len({tuple(x["loc"]) for x in errors}) - shown
     if more > 0 and not in_material:
         msg += f" (and {more} more error{'s' if more > 1 else ''})"
     return _format_loc(loc), msg

@@ -19,6 +19,16 @@ app = typer.Typer(
 )
 
 
+# options several commands share
+SceneArg = Annotated[Path, typer.Argument(help="scene file (TOML)")]
+SeedOpt = Annotated[Optional[int], typer.Option(min=0, help="random seed (overrides the scene)")]
+ThreadsOpt = Annotated[Optional[int], typer.Option(min=1, help="worker threads (default: all cores)")]
+CacheDirOpt = Annotated[Optional[Path], typer.Option(help="cache directory (else $PBVOL_CACHE_DIR, else "
+                                                    "$XDG_CACHE_HOME/pbvol, else ~/.cache/pbvol)")]
+QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="no progress bar")]
+ForceOpt = Annotated[bool, typer.Option("--force", help="rebuild even when the cache holds a matching entry")]
+
+
 def _fail(err: Exception, code: int = 1):
     typer.echo(f"error: {err}", err=True)
     raise typer.Exit(code)
@@ -38,22 +48,26 @@ def _parse_resolution(text: str | None) -> tuple[int, int] | None:
 
 @app.command()
 def render(
-    scene: Annotated[Path, typer.Argument(help="scene file (TOML)")],
+    scene: SceneArg,
     output: Annotated[Path, typer.Option("-o", "--output", help="output image (.exr)")],
-    method: Annotated[str, typer.Option(help="rendering method: volpath (reference path tracer) or pbl (point-based)")] = "volpath",
-    spp: Annotated[Optional[int], typer.Option(min=1, help="samples per pixel (overrides the scene)")] = None,
-    seed: Annotated[Optional[int], typer.Option(min=0, help="random seed (overrides the scene)")] = None,
-    threads: Annotated[Optional[int], typer.Option(min=1, help="worker threads")] = None,
-    time_limit: Annotated[Optional[float], typer.Option(min=0.001, help="stop after this many seconds (whole passes)")] = None,
+    method: Annotated[str, typer.Option(help="volpath (the reference path tracer) or pbl (point-based)")] = "volpath",
+    spp: Annotated[Optional[int], typer.Option(min=1, help="samples (volpath) or passes (pbl) per pixel "
+                                                "(overrides the scene)")] = None,
+    seed: SeedOpt = None,
+    threads: ThreadsOpt = None,
+    time_limit: Annotated[Optional[float], typer.Option(min=0.001, help="stop after the pass that crosses this "
+                                                        "many seconds")] = None,
     resolution: Annotated[Optional[str], typer.Option(help="WIDTHxHEIGHT (overrides the scene)")] = None,
-    orders: Annotated[Optional[str], typer.Option(help="keep only paths with these numbers of volume scattering events: 0, 1, 2, 3+, or a comma list")] = None,
+    orders: Annotated[Optional[str], typer.Option(help="volpath: keep only paths with these numbers of volume "
+                                                  "scattering events: 0, 1, 2, 3+, or a comma list")] = None,
     max_depth: Annotated[Optional[int], typer.Option(min=1, help="maximum path depth (overrides the scene)")] = None,
-    components: Annotated[Optional[str], typer.Option(help="pbl: comma list of single, double, multiple, bounced")] = None,
+    components: Annotated[Optional[str], typer.Option(help="pbl: comma list of single, double, multiple, "
+                                                      "bounced")] = None,
     preview: Annotated[Optional[Path], typer.Option(help="also write a tone-mapped sRGB PNG here")] = None,
     exposure: Annotated[float, typer.Option(help="preview exposure in stops")] = 0.0,
     reference: Annotated[Optional[Path], typer.Option(help="print the MSE against this image at the end")] = None,
-    cache_dir: Annotated[Optional[Path], typer.Option(help="cache directory (else $PBVOL_CACHE_DIR, else ~/.cache/pbvol)")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no progress bar")] = False,
+    cache_dir: CacheDirOpt = None,
+    quiet: QuietOpt = False,
 ):
     """Render SCENE to an EXR image (float32 RGB with metadata)."""
     from pbvol_cli.pipeline.cache import cache_dir as resolve_cache
@@ -73,12 +87,13 @@ def render(
 @app.command("precompute-lut")
 def precompute_lut(
     file: Annotated[Path, typer.Argument(help="material file, or scene file (then every medium in it)")],
-    particles: Annotated[Optional[int], typer.Option(min=1000, help="particles per table (default: a collision budget)")] = None,
-    seed: Annotated[Optional[int], typer.Option(min=0, help="random seed")] = None,
-    threads: Annotated[Optional[int], typer.Option(min=1, help="worker threads")] = None,
-    force: Annotated[bool, typer.Option("--force", help="rebuild even when a cached table matches")] = False,
-    cache_dir: Annotated[Optional[Path], typer.Option(help="cache directory (else $PBVOL_CACHE_DIR, else ~/.cache/pbvol)")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no progress bar")] = False,
+    particles: Annotated[Optional[int], typer.Option(min=1000, help="particles per table (default: a collision "
+                                                     "budget)")] = None,
+    seed: SeedOpt = None,
+    threads: ThreadsOpt = None,
+    force: ForceOpt = False,
+    cache_dir: CacheDirOpt = None,
+    quiet: QuietOpt = False,
 ):
     """Precompute the multiple-scattering tables (one per distinct albedo of each medium) into the cache."""
     from pbvol_cli.pipeline.cache import cache_dir as resolve_cache
@@ -94,11 +109,11 @@ def precompute_lut(
 
 @app.command("place-samples")
 def place_samples(
-    scene: Annotated[Path, typer.Argument(help="scene file (TOML)")],
-    seed: Annotated[Optional[int], typer.Option(min=0, help="random seed (overrides the scene)")] = None,
-    threads: Annotated[Optional[int], typer.Option(min=1, help="worker threads")] = None,
-    force: Annotated[bool, typer.Option("--force", help="rebuild even when cached samples match")] = False,
-    cache_dir: Annotated[Optional[Path], typer.Option(help="cache directory (else $PBVOL_CACHE_DIR, else ~/.cache/pbvol)")] = None,
+    scene: SceneArg,
+    seed: SeedOpt = None,
+    threads: ThreadsOpt = None,
+    force: ForceOpt = False,
+    cache_dir: CacheDirOpt = None,
 ):
     """Place the light surface and volume samples of the point-based method and cache them."""
     from pbvol_cli import config as C
@@ -182,7 +197,7 @@ def _fmt3(v) -> str:
 
 
 @app.command()
-def check(scene: Annotated[Path, typer.Argument(help="scene file (TOML)")]):
+def check(scene: SceneArg):
     """Validate SCENE and summarise it: shapes, triangles, lights, media, mean free paths vs object size."""
     from pbvol_cli import config as C
     from pbvol_cli.pipeline.check import summarize

@@ -6,7 +6,6 @@ import math
 from pathlib import Path
 
 import numpy as np
-import pytest
 import tomli_w
 
 from pbvol_cli import config as C
@@ -91,8 +90,3 @@ def single_scattering_reference(built, sigma_s, sigma_t, g, light_dir, E, R, k=6
                     acc += 0.5 * (t1 - t0) * (ws[:, None] * f).sum(0)
             out[py, px] = acc / (k * k)
     return out, covered
-
-
-@pytest.fixture
-def tmp_scene(tmp_path):
-    return lambda scene, name="scene.toml": write_scene(tmp_path, scene, name)

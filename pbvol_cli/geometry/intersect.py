@@ -69,7 +69,8 @@ def _merge_hits(spheres, tri_surface, tri_normals, o, d, t_mesh, prim, u, v, ng_
             gx, gy, gz = float(ng_mesh[k, 0]), float(ng_mesh[k, 1]), float(ng_mesh[k, 2])
             inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
             ng_out[k, 0], ng_out[k, 1], ng_out[k, 2] = gx * inv, gy * inv, gz * inv
-            ns_out[k, 0], ns_out[k, 1], ns_out[k, 2] = mesh_shading_normal(tri_normals, prim[k], float(u[k]), float(v[k]))
+            ns_out[k, 0], ns_out[k, 1], ns_out[k, 2] = mesh_shading_normal(tri_normals, prim[k], float(u[k]),
+                                                                           float(v[k]))
         else:
             t_out[k] = INF
             surf_out[k] = -1
@@ -102,7 +103,7 @@ def visible(caster, built, origins: np.ndarray, dirs: np.ndarray, dist: np.ndarr
     """Shadow rays toward light target[k] (its sampled point at dist): True where neither a surface nor another
     emitter lies closer (emitters are opaque: a quad light in front of the sky hides it, as the path tracer sees
     it). The target itself is not a blocker: from the offset origin a ray near its silhouette meets it a little
-    before dist (sphere lights lost ~5 % of their light samples' irradiance that way; volpath skips it too)."""
+    before dist (volpath skips it too)."""
     t, _, _, _ = closest_surface_hits(caster, built, origins, dirs)
     tl, li = np.empty(len(origins)), np.empty(len(origins), np.int64)
     light_hits(built.lights, origins, dirs, np.minimum(t, dist), tl, li, np.ascontiguousarray(target, np.int64))

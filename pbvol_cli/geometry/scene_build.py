@@ -23,7 +23,7 @@ import numpy as np
 from pbvol_cli import config as C
 from pbvol_cli.errors import ConfigError
 from pbvol_cli.geometry.distance_grid import build_distance_grid
-from pbvol_cli.physics.lights import (ENVIRONMENT, LIGHT_E1, LIGHT_E2, LIGHT_P0, LIGHT_RADIUS, LIGHT_TYPE, QUAD, SPHERE,
+from pbvol_cli.physics.lights import (LIGHT_E1, LIGHT_E2, LIGHT_P0, LIGHT_RADIUS, LIGHT_TYPE, QUAD, SPHERE,
                                      light_rows)
 from pbvol_cli.physics.phase import KINDS
 
@@ -66,13 +66,8 @@ class BuiltScene:
     extent: float  # bounding-box diagonal of the geometry
     bbox: np.ndarray  # (2, 3)
     medium_info: list[MediumInfo] = field(default_factory=list)
-    surface_names: list[str] = field(default_factory=list)
     surface_shape: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # shape index of each surface
     shape_triangles: list[tuple[str, int]] = field(default_factory=list)
-
-    @property
-    def has_environment(self) -> bool:
-        return bool(np.any(self.lights[:, LIGHT_TYPE] == ENVIRONMENT))
 
     @property
     def resolution(self) -> tuple[int, int]:
@@ -132,17 +127,15 @@ def build_scene(scene: C.Scene, path: Path, resolution: tuple[int, int] | None =
     path = Path(path)
     media = _Media(scene, path)
     surfaces: list[list[float]] = []
-    names: list[str] = []
     owner: list[int] = []
     verts, faces, tri_surf, tri_norm, spheres = [], [], [], [], []
     shape_tris: list[tuple[str, int]] = []
     nv = 0
 
-    def add_surface(kind, m_in, m_out, eta_in, eta_out, albedo, name):
+    def add_surface(kind, m_in, m_out, eta_in, eta_out, albedo):
         if kind == DIELECTRIC and eta_in == eta_out:
             kind = NULL
         surfaces.append([kind, m_in, m_out, eta_in, eta_out, *albedo])
-        names.append(name)
         owner.append(i)
         return len(surfaces) - 1
 
@@ -157,15 +150,13 @@ def build_scene(scene: C.Scene, path: Path, resolution: tuple[int, int] | None =
             eta_in = shape.eta if shape.eta is not None else (media.eta(m_in) or 1.5)
         else:
             eta_in = eta_out
-        role_surface = {"body": add_surface(kind, m_in, m_out, eta_in, eta_out, shape.albedo, name)}
+        role_surface = {"body": add_surface(kind, m_in, m_out, eta_in, eta_out, shape.albedo)}
         if isinstance(shape, C.CupShape):
             liquid = media.get(shape.liquid, f"{fld}.liquid")
             eta_l = shape.liquid_eta or media.eta(liquid) or 1.33
             role_surface["glass"] = role_surface["body"]
-            role_surface["liquid_glass"] = add_surface(DIELECTRIC, liquid, m_in, eta_l, eta_in, shape.albedo,
-                                                       name + ":liquid-glass")
-            role_surface["liquid_free"] = add_surface(DIELECTRIC, liquid, m_out, eta_l, eta_out, shape.albedo,
-                                                      name + ":liquid-air")
+            role_surface["liquid_glass"] = add_surface(DIELECTRIC, liquid, m_in, eta_l, eta_in, shape.albedo)
+            role_surface["liquid_free"] = add_surface(DIELECTRIC, liquid, m_out, eta_l, eta_out, shape.albedo)
         if isinstance(shape, C.SphereShape):
             c = np.asarray(shape.center, float)
             r = shape.radius
@@ -253,6 +244,6 @@ def build_scene(scene: C.Scene, path: Path, resolution: tuple[int, int] | None =
         spheres=S, surfaces=surf, media=med, lights=lights,
         camera=camera_params(scene.camera, resolution),
         grid_params=gp, grid_cells=gc, eps=eps, extent=extent, bbox=bbox,
-        medium_info=media.info, surface_names=names, shape_triangles=shape_tris,
+        medium_info=media.info, shape_triangles=shape_tris,
         surface_shape=np.asarray(owner, np.int64),
     )

@@ -18,7 +18,8 @@ from numba import njit
 from pbvol_cli.physics.sampling import around, uniform_sphere
 
 POINT, DIRECTIONAL, SPHERE, QUAD, ENVIRONMENT = 0, 1, 2, 3, 4  # LIGHT_TYPE values
-LIGHT_TYPE, LIGHT_RGB, LIGHT_P0, LIGHT_E1, LIGHT_E2, LIGHT_RADIUS, LIGHT_TWO_SIDED, LIGHT_AREA = 0, 1, 4, 7, 10, 13, 14, 15
+LIGHT_TYPE, LIGHT_RGB, LIGHT_P0, LIGHT_E1, LIGHT_E2 = 0, 1, 4, 7, 10  # RGB and the vectors take 3 columns
+LIGHT_RADIUS, LIGHT_TWO_SIDED, LIGHT_AREA = 13, 14, 15
 LIGHT_COLS = 16
 INF = np.inf
 
@@ -77,8 +78,8 @@ def intersect_lights(lights, ox, oy, oz, dx, dy, dz, tmax, skip=-1):
             continue
         kind = lights[li, LIGHT_TYPE]
         if kind == SPHERE:
-            t, _ = sphere_hit(ox, oy, oz, dx, dy, dz, lights[li, LIGHT_P0], lights[li, LIGHT_P0 + 1], lights[li, LIGHT_P0 + 2],
-                               lights[li, LIGHT_RADIUS], 0.0)
+            t, _ = sphere_hit(ox, oy, oz, dx, dy, dz, lights[li, LIGHT_P0], lights[li, LIGHT_P0 + 1],
+                              lights[li, LIGHT_P0 + 2], lights[li, LIGHT_RADIUS], 0.0)
             if t < best:
                 best, idx = t, li
         elif kind == QUAD:
@@ -149,7 +150,8 @@ def light_pdf(lights, li, px, py, pz, dx, dy, dz, t):
     if kind == ENVIRONMENT:
         return 1.0 / (4.0 * math.pi)
     if kind == SPHERE:
-        cx, cy, cz, rad = lights[li, LIGHT_P0] - px, lights[li, LIGHT_P0 + 1] - py, lights[li, LIGHT_P0 + 2] - pz, lights[li, LIGHT_RADIUS]
+        cx, cy, cz = lights[li, LIGHT_P0] - px, lights[li, LIGHT_P0 + 1] - py, lights[li, LIGHT_P0 + 2] - pz
+        rad = lights[li, LIGHT_RADIUS]
         d2 = cx * cx + cy * cy + cz * cz
         if d2 <= rad * rad:
             return 0.0
@@ -186,7 +188,8 @@ def light_sample(lights, li, px, py, pz, u1, u2):
         w = uniform_sphere(u1, u2)
         return w[0], w[1], w[2], INF, Lr, Lg, Lb, 1.0 / (4.0 * math.pi), False
     if kind == SPHERE:
-        cx, cy, cz, rad = lights[li, LIGHT_P0] - px, lights[li, LIGHT_P0 + 1] - py, lights[li, LIGHT_P0 + 2] - pz, lights[li, LIGHT_RADIUS]
+        cx, cy, cz = lights[li, LIGHT_P0] - px, lights[li, LIGHT_P0 + 1] - py, lights[li, LIGHT_P0 + 2] - pz
+        rad = lights[li, LIGHT_RADIUS]
         d2 = cx * cx + cy * cy + cz * cz
         if d2 <= rad * rad:
             return 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, False
@@ -195,7 +198,8 @@ def light_sample(lights, li, px, py, pz, u1, u2):
         one_minus_cos_max = s2 / (1.0 + math.sqrt(1.0 - s2))
         cos_t = 1.0 - u1 * one_minus_cos_max
         w = around(cos_t, 2.0 * math.pi * u2, cx / d, cy / d, cz / d)
-        t, _ = sphere_hit(px, py, pz, w[0], w[1], w[2], lights[li, LIGHT_P0], lights[li, LIGHT_P0 + 1], lights[li, LIGHT_P0 + 2], rad, 0.0)
+        t, _ = sphere_hit(px, py, pz, w[0], w[1], w[2], lights[li, LIGHT_P0], lights[li, LIGHT_P0 + 1],
+                          lights[li, LIGHT_P0 + 2], rad, 0.0)
         if t == INF:  # grazing the silhouette in floating point: place it on the tangent point
             t = d * cos_t
         return w[0], w[1], w[2], t, Lr, Lg, Lb, 1.0 / (2.0 * math.pi * one_minus_cos_max), False

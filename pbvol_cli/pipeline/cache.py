@@ -46,6 +46,22 @@ def save_npz_atomic(path: Path, **arrays) -> None:
             tmp.unlink()
 
 
+def cached_entry(path: Path, required: tuple[str, ...], from_arrays, build, force: bool = False):
+    """(entry, reused): the entry at path rebuilt from its arrays by from_arrays, or, when it is missing, damaged
+    (from_arrays raises ValueError, KeyError or TypeError) or force is set, build()'s, whose .arrays() are then
+    stored atomically."""
+    if not force:
+        data = load_npz(path, required)
+        if data is not None:
+            try:
+                return from_arrays(data), True
+            except (ValueError, KeyError, TypeError):
+                pass  # damaged: rebuilt below
+    entry = build()
+    save_npz_atomic(path, **entry.arrays())
+    return entry, False
+
+
 def load_npz(path: Path, required: tuple[str, ...] = ()) -> dict | None:
     """The entry's arrays, or None when it is missing or damaged (truncated, unreadable, incomplete)."""
     path = Path(path)

@@ -20,8 +20,8 @@ def summarize(scene: C.Scene, path: Path) -> str:
     ntri = int(len(b.faces))
     lines.append(f"  shapes: {len(scene.shapes)} ({ntri} triangles, {len(b.spheres)} analytic spheres)")
     for (name, tris), shape in zip(b.shape_triangles, scene.shapes):
-        med = shape.medium if isinstance(shape.medium, str) else (shape.medium.name or "inline") if shape.medium else "-"
-        extra = f", liquid {shape.liquid if isinstance(shape.liquid, str) else 'inline'}" if getattr(shape, "liquid", None) else ""
+        med = _medium_label(shape.medium) or "-"
+        extra = f", liquid {_medium_label(shape.liquid)}" if getattr(shape, "liquid", None) else ""
         eta = f", eta {shape.eta:g}" if shape.eta is not None else ""
         lines.append(f"    {name}: {shape.type}, {shape.interface}{eta}, medium {med}{extra}"
                      + (f", {tris} triangles" if tris else " (analytic)"))
@@ -37,11 +37,19 @@ def summarize(scene: C.Scene, path: Path) -> str:
         obj = _medium_size(b, k)
         ratio = obj / mfp
         lines.append(f"    {mi.label}: albedo {_f(alb)}, mean free path {_f(mfp)} {scene.unit}, g {mi.material.g:g}, "
-                     f"phase {mi.material.phase}{', sealed (no light reaches it directly)' if b.media[k, MED_SEALED] else ''}")
+                     f"phase {mi.material.phase}"
+                     + (", sealed (no light reaches it directly)" if b.media[k, MED_SEALED] else ""))
         lines.append(f"      object size {obj:.4g} = {_f(ratio)} mean free paths")
     if not any(L.type in ("sphere", "quad", "environment") for L in scene.lights):
         lines.append("  note: only delta lights: volpath cannot reach them through a refracting boundary")
     return "\n".join(lines)
+
+
+def _medium_label(ref) -> str | None:
+    """A shape's medium reference as the user wrote it (an inline table: its name, else "inline")."""
+    if ref is None:
+        return None
+    return ref if isinstance(ref, str) else (ref.name or "inline")
 
 
 def _medium_size(b, k: int) -> float:

@@ -78,12 +78,6 @@ def _check_pair(a, b) -> tuple[np.ndarray, np.ndarray]:
     return a, b
 
 
-def _json_float(v: float) -> float | str:
-    if math.isinf(v):
-        return "inf" if v > 0 else "-inf"
-    return float(v)
-
-
 def _psnr(mse: float, peak: float) -> float | str:
     if mse == 0.0:
         return "inf"

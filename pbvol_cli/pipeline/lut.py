@@ -15,7 +15,7 @@ import numpy as np
 from pbvol_cli.config import LutSettings
 from pbvol_cli.multiple_scattering.layout import Layout
 from pbvol_cli.multiple_scattering.table import MSTable, TableSettings, build_table, resolve_particles
-from pbvol_cli.pipeline.cache import key_of, load_npz, save_npz_atomic
+from pbvol_cli.pipeline.cache import cached_entry, key_of
 
 
 @dataclass
@@ -46,16 +46,9 @@ def get_table(alpha: float, g: float, phase_kind: int, settings: TableSettings, 
     t0 = time.perf_counter()
     settings = resolve_particles(alpha, g, phase_kind, settings)
     path = table_path(cache, alpha, g, phase_kind, settings)
-    if not force:
-        data = load_npz(path, MSTable.REQUIRED)
-        if data is not None:
-            try:
-                return TableResult(MSTable.from_arrays(data), path, True, time.perf_counter() - t0)
-            except (ValueError, KeyError, TypeError):
-                pass  # damaged: rebuild below
-    table, _ = build_table(alpha, g, phase_kind, settings, progress)
-    save_npz_atomic(path, **table.arrays())
-    return TableResult(table, path, False, time.perf_counter() - t0)
+    table, reused = cached_entry(path, MSTable.REQUIRED, MSTable.from_arrays,
+                                 lambda: build_table(alpha, g, phase_kind, settings, progress)[0], force)
+    return TableResult(table, path, reused, time.perf_counter() - t0)
 
 
 def channel_tables(sigma_a: np.ndarray, sigma_s: np.ndarray) -> list[tuple[float, list[int]]]:

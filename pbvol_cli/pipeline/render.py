@@ -132,7 +132,8 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts):
         comps = tuple(c.strip() for c in opts.components.split(",") if c.strip())
         bad = [c for c in comps if c not in COMPONENTS]
         if bad:
-            raise PbvolError(f"--components: unknown {', '.join(bad)}; expected a comma list of {', '.join(COMPONENTS)}")
+            raise PbvolError(f"--components: unknown {', '.join(bad)}; "
+                             f"expected a comma list of {', '.join(COMPONENTS)}")
         pbl = pbl.model_copy(update={"components": comps})
     cache = cache_dir(opts.cache_dir)
     stages = {}
@@ -176,7 +177,8 @@ def format_summary(s: dict) -> str:
     if st:
         line += (f"\nstages: light samples {st['samples_s']:.2f} s"
                  f"{' (cached)' if st.get('samples_reused') else ''}, peak {st['samples_peak_mb']:.0f} MiB; "
-                 f"tables {st['tables_s']:.2f} s, peak {st['tables_peak_mb']:.0f} MiB; camera pass {st['render_s']:.2f} s "
+                 f"tables {st['tables_s']:.2f} s, peak {st['tables_peak_mb']:.0f} MiB; "
+                 f"camera pass {st['render_s']:.2f} s "
                  f"(of which {st['pass_samples_s']:.2f} s new light samples per pass, "
                  f"{st.get('bounced_s', 0.0):.2f} s bounced samples), peak {st['peak_memory_mb']:.0f} MiB")
     if "mse" in s:

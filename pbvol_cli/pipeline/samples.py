@@ -11,7 +11,7 @@ import numpy as np
 
 from pbvol_cli import config as C
 from pbvol_cli.errors import PbvolError
-from pbvol_cli.pipeline.cache import key_of, load_npz, save_npz_atomic
+from pbvol_cli.pipeline.cache import cached_entry, key_of
 
 # 2: indirect diffuse light at the surface samples; 3: boundary planes; 4: glass walls reflect; 5-7: roulette on
 # weak reflections, planes beyond the boundary; 8: a light is not its own shadow blocker; 9: light guided by
@@ -50,17 +50,13 @@ def get_light_samples(built, pbl: C.PblSettings, seed: int, cache: Path, threads
 
     t0 = time.perf_counter()
     path = samples_path(cache, built, pbl, seed)
-    if not force:
-        data = load_npz(path, LightSamples.FIELDS)
-        if data is not None:
-            try:
-                return SamplesResult(LightSamples.from_arrays(data), path, True, time.perf_counter() - t0)
-            except (ValueError, TypeError, KeyError):
-                pass  # damaged: rebuild
-    try:
-        ls = place_light_samples(built, pbl.surface_samples, pbl.segments_per_beam, pbl.max_internal_reflections,
-                                 pbl.max_layers, seed, threads, progress)
-    except ValueError as e:
-        raise PbvolError(f"place-samples: {e}") from None
-    save_npz_atomic(path, **ls.arrays())
-    return SamplesResult(ls, path, False, time.perf_counter() - t0)
+
+    def place():
+        try:
+            return place_light_samples(built, pbl.surface_samples, pbl.segments_per_beam,
+                                       pbl.max_internal_reflections, pbl.max_layers, seed, threads, progress)
+        except ValueError as e:
+            raise PbvolError(f"place-samples: {e}") from None
+
+    samples, reused = cached_entry(path, LightSamples.FIELDS, LightSamples.from_arrays, place, force)
+    return SamplesResult(samples, path, reused, time.perf_counter() - t0)

@@ -56,8 +56,8 @@ def cross_interface(surfaces, pos, d, power, medium, cosx, ng, ns, t, surf, eps,
     beam is transmitted, its power times Fresnel T (the reflected part leaves); with u[k] in [0, 1) it is reflected
     with probability F (total internal reflection: always) and transmitted otherwise, its power unchanged (an
     unbiased choice): light inside a glass wall is guided by total internal reflection at its outside and leaks
-    into the liquid (the rim lit from above glows down the wall; 10% of a milk glass's single scattering under a
-    light above it). bn: the geometric normal where it crossed into a medium (its boundary plane there)."""
+    into the liquid (the rim lit from above glows down the wall). bn: the geometric normal where it crossed into a
+    medium (its boundary plane there)."""
     for k in prange(pos.shape[0]):
         if not alive[k]:
             continue
@@ -293,7 +293,8 @@ def beam_segments(caster, bs: BuiltScene, beams: Beams, segments: int, max_refle
         R2 = layer_reflectance(caster, bs, live.pos, live.dir, t, s, ng, ns)
         _segments(bs.media, bs.surfaces, live, BeamHits(t, s, ng, ns), o, bs.eps, segments, p_min[act], R2, seed,
                   leg, a_)
-        beams.pos[act], beams.dir[act], beams.power[act], beams.normal[act] = live.pos, live.dir, live.power, live.normal
+        beams.pos[act], beams.dir[act] = live.pos, live.dir
+        beams.power[act], beams.normal[act] = live.power, live.normal
         alive[act] = a_
         valid = o.len > 0
         for key, arr in zip(SEGMENT_FIELDS, o):

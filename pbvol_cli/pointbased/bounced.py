@@ -18,7 +18,7 @@ carried the same way as the light from the lights, as beams:
 4. the beams are cut into volume samples like the lights' (their own internal reflections followed), and give
    generation g + 1's samples, gathered in turn for the next generation;
 5. the generations after the last are a geometric tail: the last generation's power is scaled by 1 / (1 - r), r
-   the ratio of its emitted power to the one before (measured r: 0.5-0.6 in wax behind eta 1.44).
+   the ratio of its emitted power to the one before (docs/pbl.md gives measured ratios).
 The union of generations is one more set of volume samples, evaluated on camera rays by the same three estimators;
 its sum is the `bounced` layer (light with at least one scattering before a reflection: order 2 and above).
 Boundaries that are not dielectric (index-matched, diffuse) reflect nothing here.
@@ -32,19 +32,20 @@ from types import SimpleNamespace
 import numpy as np
 from numba import njit, prange
 
-from pbvol_cli.geometry.scene_build import DIELECTRIC, SPH_SURFACE, SURF_MEDIUM_IN, SURF_MEDIUM_OUT, SURF_TYPE, BuiltScene
+from pbvol_cli.geometry.intersect import closest_surface_hits
+from pbvol_cli.geometry.scene_build import (DIELECTRIC, SPH_SURFACE, SURF_MEDIUM_IN, SURF_TYPE,
+                                           BuiltScene)
 from pbvol_cli.physics.fresnel import fresnel_dielectric
 from pbvol_cli.physics.sampling import cosine_around, rand, seed_state
 from pbvol_cli.pointbased.beams import Beams, beam_segments, layer_reflectance, slab_reflectance
 from pbvol_cli.pointbased.gather import eval_segments, segment_planes
 from pbvol_cli.pointbased.surface_samples import SHARING_RADIUS, poisson_disk, share_among_neighbours
 from pbvol_cli.pointbased.volume_samples import SAMPLE_KEYS, medium_params, scattered_share
-from pbvol_cli.geometry.intersect import closest_surface_hits
 from pbvol_cli.render.interfaces import indices
 
 
-# single scattering of the bounced beams: a disc of this many times the boundary point's radius (x1: a few
-# strong beams made single-pixel outliers, bumpy sphere relMSE 0.24; x3: 0.057)
+# single scattering of the bounced beams: a disc of this many times the boundary point's radius (narrower, a few
+# strong beams made single-pixel outliers: docs/pbl.md)
 BOUNCED_KERNEL = 3.0
 MIN_SHARE = 0.01  # generations stop once one scatters less than this share of the lights' samples' power
 TAIL_RATIO_MAX = 0.9  # generation-to-generation ratio the tail is extrapolated with at most
@@ -55,8 +56,7 @@ def boundary_points(bs: BuiltScene, medium: int, count: int, seed: int):
     surface ids, area per point (scene units^2), the points' minimum distance); empty when no dielectric surface
     bounds it."""
     surf = bs.surfaces
-    ids = np.array([k for k in range(len(surf)) if (surf[k, SURF_MEDIUM_IN] == medium or surf[k, SURF_MEDIUM_OUT] == medium)
-                    and surf[k, SURF_TYPE] == DIELECTRIC], np.int64)
+    ids = np.flatnonzero(bs.surfaces_bounding(medium) & (surf[:, SURF_TYPE] == DIELECTRIC)).astype(np.int64)
     if len(ids) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64), 0.0, 0.0
     tri = np.isin(bs.tri_surface, ids)
@@ -166,9 +166,8 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
         # the generations after the last: a geometric tail at the last ratio of emitted powers (the later
         # generations converge to the boundary's slowest-decaying pattern), carried by the last generation. The
         # ratio is taken from robust totals: one gather ray that meets a bounced beam head-on (peaked phase,
-        # g = 0.9) makes a point reflect tens of times more than any other, and the raw ratio let the tail
-        # multiply that spike by up to 1 / (1 - TAIL_RATIO_MAX) = 10 (bumpy sphere: one pass in 16 at 14x the
-        # others' bounced light, 4x with the robust ratio)
+        # g = 0.9) makes a point reflect tens of times more than any other, and the raw ratio would let the tail
+        # multiply that spike by up to 1 / (1 - TAIL_RATIO_MAX) = 10
         with np.errstate(divide="ignore", invalid="ignore"):
             r = np.clip(np.nan_to_num(robust[-1] / robust[-2]), 0.0, TAIL_RATIO_MAX)
         gens[-1].v_power = gens[-1].v_power / (1.0 - r)[None, :]

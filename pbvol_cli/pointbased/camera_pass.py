@@ -182,8 +182,8 @@ def _interact_one(i, surfaces, lights, rays, hits, limits, emit, children, shado
 # takes k = sqrt(PASS_COST_RATIO S1 / M) (auto_surface_paths), measured on the passes before it
 AUTO_FIRST_PATHS = 8
 AUTO_MAX_PATHS = 128
-PASS_COST_RATIO = 20.0  # a pass's medium work over one surface path per pixel (measured 16-30: docs/pbl.md). The
-# optimum is flat in it (k goes as its square root), and a constant keeps the image independent of timings
+PASS_COST_RATIO = 20.0  # a pass's medium work in surface paths per pixel (docs/pbl.md). The optimum is flat in it
+# (k goes as its square root), and a constant keeps the image independent of timings
 
 
 def auto_surface_paths(s1: float, m: float) -> int:

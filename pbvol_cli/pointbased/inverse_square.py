@@ -62,7 +62,8 @@ def attenuated_inv_r2_ball(r, c, s):
     """Mean of e^(-s |P - x|) / |P - x|^2 over x uniform in a ball of radius c, |P| = r (s: extinction, 1/length):
     a point source's attenuated 1/r^2 smeared over the source's extent. Unlike e^(-s r) inv_r2_ball(r, c), it
     keeps the kernel's integral over space (4 pi / s): smoothing 1/r^2 alone moves the near field's weight to
-    where the attenuation at the centre distance is stronger (docs/pbl.md). Spherical shells about P: the shell of radius t holds 4 pi t^2 of ball
+    where the attenuation at the centre distance is stronger (docs/pbl.md). Spherical shells about P: the shell of
+    radius t holds 4 pi t^2 of ball
     for t < c - r, pi t (c^2 - (t - r)^2) / r for |c - r| < t < c + r."""
     if c <= 0.0 or r > 4.0 * c:
         return math.exp(-s * r) / (r * r) if r > 0.0 else np.inf

@@ -157,8 +157,8 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
     tri = np.isin(bs.tri_surface, outer)
     sph = bs.spheres[np.isin(bs.spheres[:, SPH_SURFACE].astype(np.int64), outer)]
     advance()
-    pos, nrm, sid, area, spacing = poisson_disk(bs.vertices, bs.faces[tri], bs.tri_normals[tri], bs.tri_surface[tri], sph,
-                                          surface_samples, seed)
+    pos, nrm, sid, area, spacing = poisson_disk(bs.vertices, bs.faces[tri], bs.tri_normals[tri],
+                                                bs.tri_surface[tri], sph, surface_samples, seed)
     n = len(pos)
     caster = TriangleCaster(bs.vertices, bs.faces, threads)
     eps = bs.eps

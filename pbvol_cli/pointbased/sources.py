@@ -163,6 +163,7 @@ def split_terms(i, n, vs, med, q, rclamp, do_double, do_multiple, split, out_d, 
             st = sig_a[c] + sig_s[c]
             pw[c] = v_power[i, c] * (sig_s[c] / st * (math.exp(-st * t0) - math.exp(-st * t1)) if st > 0.0 else 0.0)
         tm = 0.5 * (t0 + t1)
-        sub = Source(v_start[i, 0] + tm * v_dir[i, 0], v_start[i, 1] + tm * v_dir[i, 1], v_start[i, 2] + tm * v_dir[i, 2],
-                     v_dir[i, 0], v_dir[i, 1], v_dir[i, 2], pw[0], pw[1], pw[2], max(0.5 * (t1 - t0), vs.rb[i]))
+        sub = Source(v_start[i, 0] + tm * v_dir[i, 0], v_start[i, 1] + tm * v_dir[i, 1],
+                     v_start[i, 2] + tm * v_dir[i, 2], v_dir[i, 0], v_dir[i, 1], v_dir[i, 2], pw[0], pw[1], pw[2],
+                     max(0.5 * (t1 - t0), vs.rb[i]))
         source_terms(sub, vs.plane[i], med, q, rclamp, do_double, do_multiple, vs.tables, split, out_d, out_m)

@@ -99,7 +99,8 @@ def poisson_disk(V, F, tri_normals, tri_surface, spheres, target: int, seed: int
     """
     V = np.asarray(V, np.float64)
     F = np.asarray(F, np.int64).reshape(-1, 3)
-    tri_area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1) if len(F) else np.zeros(0)
+    tri_area = (0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1) if len(F)
+                else np.zeros(0))
     cum = np.cumsum(tri_area)
     sph = np.asarray(spheres, np.float64).reshape(-1, 5)
     sph_area = 4 * np.pi * sph[:, SPH_RADIUS] ** 2

@@ -7,7 +7,7 @@ its beam entered and leaves (PLANE_* columns of beams.py). Prepared here (Sample
 - single scattering's kernel disc: area A_v x beam_width^2;
 - the beam's radius rb (double scattering's smoothing), the segment's centre;
 - an octree over the centres, each sample's box holding its kernel disc along the segment (continued at the
-  boundary by estimators' END_EXTENSION), nodes aggregating scattered power;
+  boundary by END_EXTENSION), nodes aggregating scattered power;
 - double scattering's near-field radius (near_field_radius) and the medium's three multiple-scattering tables.
 """
 

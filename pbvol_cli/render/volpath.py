@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import namedtuple
 
 import numpy as np
 from numba import njit, prange
@@ -46,8 +47,16 @@ from pbvol_cli.geometry.intersect import analytic_hit, mesh_shading_normal
 DEAD, NEED_CAST, CONTINUE = 0, 1, 2
 INF = np.inf
 
-# misc[] layout shared by the kernels
-M_EPS, M_MAXDEPTH, M_RRDEPTH, M_ORDERS, M_MAXORDER, M_HASMESH, M_ENV, M_NLIGHTS = range(8)
+# misc[] (path_settings) layout shared by the kernels
+M_EPS, M_MAXDEPTH, M_RRDEPTH, M_ORDERS, M_MAXORDER, M_HASMESH, M_NLIGHTS = range(7)
+
+# The kernels' bundles (numba reads them by field name or unpacks them in this order).
+SceneTables = namedtuple("SceneTables", ["tri_surface", "tri_normals", "spheres", "surfaces", "media", "lights",
+                                         "grid_params", "grid_cells"])
+PathState = namedtuple("PathState", ["pos", "dir", "beta", "L", "rng", "status", "medium", "depth", "nscat", "tpend",
+                                     "prev_pos", "prev_pdf", "eta_scale"])
+ShadowState = namedtuple("ShadowState", ["active", "pos", "dir", "tmax", "contrib", "medium", "light"])
+TriangleHits = namedtuple("TriangleHits", ["t", "prim", "u", "v", "ng"])
 
 
 def orders_mask(orders: str | None) -> tuple[int, int]:
@@ -102,15 +111,16 @@ class Paths:
         self.hit_v = np.zeros(n, np.float32)
         self.hit_ng = np.zeros((n, 3), np.float32)
 
-    def state(self):
-        return (self.pos, self.dir, self.beta, self.L, self.rng, self.status, self.medium, self.depth,
-                self.nscat, self.tpend, self.prev_pos, self.prev_pdf, self.eta_scale)
+    def state(self) -> PathState:
+        return PathState(self.pos, self.dir, self.beta, self.L, self.rng, self.status, self.medium, self.depth,
+                         self.nscat, self.tpend, self.prev_pos, self.prev_pdf, self.eta_scale)
 
-    def shadow(self):
-        return (self.sh_active, self.sh_pos, self.sh_dir, self.sh_tmax, self.sh_C, self.sh_med, self.sh_light)
+    def shadow(self) -> ShadowState:
+        return ShadowState(self.sh_active, self.sh_pos, self.sh_dir, self.sh_tmax, self.sh_C, self.sh_med,
+                           self.sh_light)
 
-    def hits(self):
-        return (self.hit_t, self.hit_prim, self.hit_u, self.hit_v, self.hit_ng)
+    def hits(self) -> TriangleHits:
+        return TriangleHits(self.hit_t, self.hit_prim, self.hit_u, self.hit_v, self.hit_ng)
 
 
 # ----------------------------------------------------------------------------- kernel pieces
@@ -197,8 +207,8 @@ def _add_emission(L, beta, i, r, g, b, w):
 def _nee(i, px, py, pz, kind, nx, ny, nz, dx, dy, dz, phase_kind, g, albedo, medium, S, misc, st, sh):
     """Next-event estimation from a scattering point (kind 0, phase toward -d... of propagation d) or a
     diffuse point (kind 1, facing normal n, albedo RGB). Fills the path's shadow slot; True if it did."""
-    lights = S[5]
-    beta, rng, nscat = st[2], st[4], st[8]
+    lights = S.lights
+    beta, rng, nscat = st.beta, st.rng, st.nscat
     sh_active, sh_pos, sh_dir, sh_tmax, sh_C, sh_med, sh_light = sh
     nl = lights.shape[0]
     li = min(int(rand(rng, i) * nl), nl - 1)
@@ -279,8 +289,8 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
                 nee_on = media[m, MED_SEALED] == 0.0 and nl > 0
                 did_nee = False
                 if nee_on:
-                    did_nee = _nee(i, px, py, pz, 0, 0.0, 0.0, 0.0, dx, dy, dz, kind, g, media[m, MED_SIGMA_A:MED_SIGMA_A + 3], m,
-                                   S, misc, st, sh)
+                    did_nee = _nee(i, px, py, pz, 0, 0.0, 0.0, 0.0, dx, dy, dz, kind, g,
+                                   media[m, MED_SIGMA_A:MED_SIGMA_A + 3], m, S, misc, st, sh)
                 wx, wy, wz, pdf = phase_sample(kind, g, dx, dy, dz, rand(rng, i), rand(rng, i), rand(rng, i))
                 prev_pos[i, 0], prev_pos[i, 1], prev_pos[i, 2] = px, py, pz
                 prev_pdf[i] = pdf if nee_on else 0.0
@@ -303,7 +313,8 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
                     w = 1.0
                     if prev_pdf[i] > 0.0:
                         w = power_heuristic(prev_pdf[i], light_pdf(lights, li, 0.0, 0.0, 0.0, dx, dy, dz, INF) / nl)
-                    _add_emission(L, beta, i, lights[li, LIGHT_RGB], lights[li, LIGHT_RGB + 1], lights[li, LIGHT_RGB + 2], w)
+                    _add_emission(L, beta, i, lights[li, LIGHT_RGB], lights[li, LIGHT_RGB + 1],
+                                  lights[li, LIGHT_RGB + 2], w)
             status[i] = DEAD
             return
         hx, hy, hz = ox + tsurf * dx, oy + tsurf * dy, oz + tsurf * dz
@@ -332,7 +343,9 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
         else:
             s = int(spheres[aidx, SPH_SURFACE])
             r = spheres[aidx, SPH_RADIUS]
-            gx, gy, gz = (hx - spheres[aidx, SPH_CENTER]) / r, (hy - spheres[aidx, SPH_CENTER + 1]) / r, (hz - spheres[aidx, SPH_CENTER + 2]) / r
+            gx = (hx - spheres[aidx, SPH_CENTER]) / r
+            gy = (hy - spheres[aidx, SPH_CENTER + 1]) / r
+            gz = (hz - spheres[aidx, SPH_CENTER + 2]) / r
             inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
             gx, gy, gz = gx * inv, gy * inv, gz * inv
             nx, ny, nz = gx, gy, gz
@@ -373,8 +386,8 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
             cur = medium[i]
             nee_on = (cur < 0 or media[cur, MED_SEALED] == 0.0) and nl > 0
             if nee_on:
-                did_nee = _nee(i, hx, hy, hz, 1, fnx, fny, fnz, dx, dy, dz, 0, 0.0, surfaces[s, SURF_ALBEDO:SURF_ALBEDO + 3], cur,
-                               S, misc, st, sh)
+                did_nee = _nee(i, hx, hy, hz, 1, fnx, fny, fnz, dx, dy, dz, 0, 0.0,
+                               surfaces[s, SURF_ALBEDO:SURF_ALBEDO + 3], cur, S, misc, st, sh)
             wx, wy, wz = cosine_hemisphere(rand(rng, i), rand(rng, i), fnx, fny, fnz)
             c = wx * fnx + wy * fny + wz * fnz
             beta[i, 0] *= surfaces[s, SURF_ALBEDO]
@@ -410,7 +423,7 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
 def advance_paths(active, S, misc, st, sh, hits):
     for k in prange(active.shape[0]):
         i = active[k]
-        _path_advance(i, st[5][i] == NEED_CAST, S, misc, st, sh, hits)
+        _path_advance(i, st.status[i] == NEED_CAST, S, misc, st, sh, hits)
 
 
 @njit(parallel=True, cache=True)
@@ -464,7 +477,8 @@ def _shadow_advance(i, k, fresh_flags, S, misc, sh, hits, L):
         elif akind == 1:
             s = int(spheres[aidx, SPH_SURFACE])
             hx, hy, hz = ox + t * dx, oy + t * dy, oz + t * dz
-            gx, gy, gz = hx - spheres[aidx, SPH_CENTER], hy - spheres[aidx, SPH_CENTER + 1], hz - spheres[aidx, SPH_CENTER + 2]
+            gx, gy = hx - spheres[aidx, SPH_CENTER], hy - spheres[aidx, SPH_CENTER + 1]
+            gz = hz - spheres[aidx, SPH_CENTER + 2]
         else:
             s = -1
         if s < 0 or surfaces[s, SURF_TYPE] != NULL:
@@ -509,7 +523,7 @@ def _init_path(i, st):
 
 def _cast_into(caster: TriangleCaster, idx, origins, dirs, hits):
     t, prim, u, v, ng = caster.closest_hit(origins[idx], dirs[idx])
-    hits[0][idx], hits[1][idx], hits[2][idx], hits[3][idx], hits[4][idx] = t, prim, u, v, ng
+    hits.t[idx], hits.prim[idx], hits.u[idx], hits.v[idx], hits.ng[idx] = t, prim, u, v, ng
 
 
 def _run_batch(P: Paths, n: int, caster: TriangleCaster, S, misc) -> tuple[int, int]:
@@ -546,9 +560,11 @@ def _run_batch(P: Paths, n: int, caster: TriangleCaster, S, misc) -> tuple[int, 
     return casts, steps
 
 
-def _misc(bs: BuiltScene, max_depth: int, rr_depth: int, orders: str | None) -> np.ndarray:
+def path_settings(bs: BuiltScene, max_depth: int, rr_depth: int, orders: str | None) -> np.ndarray:
+    """The kernels' settings (columns M_*): ray offset, maximum depth, Russian roulette's start, the scattering
+    orders kept (a bitmask over 0, 1, 2, 3+) and the highest needed, whether there are triangles, the lights."""
     mask, top = orders_mask(orders)
-    misc = np.zeros(8)
+    misc = np.zeros(7)
     misc[M_EPS], misc[M_MAXDEPTH], misc[M_RRDEPTH] = bs.eps, max_depth, rr_depth
     misc[M_ORDERS], misc[M_MAXORDER] = mask, top
     misc[M_HASMESH] = float(len(bs.faces) > 0)
@@ -572,7 +588,7 @@ def trace_radiance(bs: BuiltScene, caster: TriangleCaster, origins: np.ndarray, 
     out = np.zeros((n_all, 3))
     if n_all == 0:
         return out
-    misc = _misc(bs, max_depth, rr_depth, orders)
+    misc = path_settings(bs, max_depth, rr_depth, orders)
     S = scene_tuple(bs)
     P = Paths(min(batch_paths, n_all))
     for a in range(0, n_all, batch_paths):
@@ -584,9 +600,9 @@ def trace_radiance(bs: BuiltScene, caster: TriangleCaster, origins: np.ndarray, 
     return out
 
 
-def scene_tuple(bs: BuiltScene):
-    return (bs.tri_surface, bs.tri_normals, bs.spheres, bs.surfaces, bs.media, bs.lights,
-            bs.grid_params, bs.grid_cells)
+def scene_tuple(bs: BuiltScene) -> SceneTables:
+    return SceneTables(bs.tri_surface, bs.tri_normals, bs.spheres, bs.surfaces, bs.media, bs.lights,
+                       bs.grid_params, bs.grid_cells)
 
 
 def render_volpath(bs: BuiltScene, spp: int, seed: int, max_depth: int, rr_depth: int, orders: str | None,
@@ -597,7 +613,7 @@ def render_volpath(bs: BuiltScene, spp: int, seed: int, max_depth: int, rr_depth
     """
     W, H = bs.resolution
     npix = W * H
-    misc = _misc(bs, max_depth, rr_depth, orders)
+    misc = path_settings(bs, max_depth, rr_depth, orders)
     S = scene_tuple(bs)
     caster = TriangleCaster(bs.vertices, bs.faces, threads)
     total = npix * spp

@@ -35,7 +35,7 @@ def test_double_plus_bounced_single_matches_volpath_order_2(tmp_path):
     """Order 2 inside a dielectric sphere (eta 1.5) holds the paths that scatter, reflect on the boundary, and
     scatter again: pbl's double layer alone misses them (measured 0.82 of volpath --orders 2), the bounced samples
     from single-scattered light (one generation, evaluated by single scattering only) add them back: measured
-    0.971. The bound is the double layer's own measured bias (0.93..1.03, tests/render/test_pbl.py) widened by 4
+    0.971. The bound is the double layer's own measured bias (0.93..1.03, tests/pointbased/test_passes.py) widened by 4
     standard errors of both estimates."""
     bs = build(tmp_path, _sphere())
     tabs = [empty_table().render_args()] * 3
@@ -100,7 +100,7 @@ def test_scattered_light_that_a_floor_sends_back_completes_order_2(tmp_path):
     samples' path-traced indirect light carries it (light_samples._indirect: v_returned, here restricted to order
     1 before the return) and the bounced layer evaluates it; the double layer alone misses it. Measured: double +
     the returned samples' single scattering 1.008 of volpath --orders 2, of which the returned part is 0.27. The
-    bound is the double layer's own measured bias (0.93..1.03, tests/render/test_pbl.py) widened by 4 standard
+    bound is the double layer's own measured bias (0.93..1.03, tests/pointbased/test_passes.py) widened by 4 standard
     errors of both estimates; without the returned light the ratio is 0.74."""
     scene = {"camera": camera((12, 12), position=(0, 2.0, 2.0), fov=40), "render": {"spp": 4},
              "lights": [{"type": "directional", "direction": [0.0, -1.0, 0.0], "irradiance": 1.0}],

@@ -74,8 +74,8 @@ def test_index_matched_furnace(tmp_path):
     assert abs(centre - 1.0) < 0.05, centre
 
 
-@pytest.mark.xfail(strict=True, reason="known: the thick isotropic furnace behind eta 1.44 renders ~1.18 (README, "
-                   "Furnace): the multiple term is a few % high in a thick body (1.03 index-matched) and the "
+@pytest.mark.xfail(strict=True, reason="known: the thick isotropic furnace behind eta 1.44 renders ~1.18 (docs/pbl.md, "
+                   "open problems): the multiple term is a few % high in a thick body (1.03 index-matched) and the "
                    "bounced generations compound it")
 def test_thick_isotropic_furnace_behind_a_dielectric_boundary(tmp_path):
     """A non-absorbing isotropic sphere 7.7 mean free paths in radius behind eta = 1.44 under a white sky must
