@@ -24,9 +24,9 @@ import tomli_w
 ROOT = Path(__file__).resolve().parents[1]
 DIGESTS = ROOT / "tests" / "data" / "image_digests.json"
 METHODS = ("volpath", "pbl")
-# small enough for the default test run: 20x20 pixels, 2 samples, few light samples, a coarse table
+# small enough for the default test run: 20x20 pixels, 2 samples, few light samples, coarse tables
 OVERRIDES = {"resolution": [20, 20], "spp": 2, "seed": 3, "surface_samples": 1500, "bounce_samples": 200,
-             "collision_budget": 200_000}
+             "particles": 1000}
 
 
 def platform_signature() -> dict:
@@ -47,7 +47,7 @@ def small_scene(config: Path, out_dir: Path) -> Path:
     render["spp"], render["seed"] = OVERRIDES["spp"], OVERRIDES["seed"]
     render.setdefault("pbl", {}).update(surface_samples=OVERRIDES["surface_samples"],
                                         bounce_samples=OVERRIDES["bounce_samples"])
-    render.setdefault("lut", {})["collision_budget"] = OVERRIDES["collision_budget"]
+    render.setdefault("lut", {})["particles"] = OVERRIDES["particles"]
     path = out_dir / config.name
     path.write_bytes(tomli_w.dumps(scene).encode())
     return path
