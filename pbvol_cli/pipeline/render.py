@@ -12,6 +12,7 @@ import numpy as np
 from pbvol_cli import __version__
 from pbvol_cli import config as C
 from pbvol_cli.errors import PbvolError
+from pbvol_cli.physics.lights import LIGHT_RGB
 from pbvol_cli.pipeline.progress import peak_memory_mb, progress_bar, set_threads
 
 METHODS = ("volpath", "pbl")
@@ -38,6 +39,29 @@ def scene_hash(scene: C.Scene, built) -> str:
     for arr in (built.surfaces, built.media, built.lights, built.spheres, built.vertices, built.faces):
         h.update(np.ascontiguousarray(arr).tobytes())
     return h.hexdigest()[:16]
+
+
+ABSURD_FACTOR = 1e6  # a pixel this many times brighter than the scene's light can make it is a numerical failure
+
+
+def implausible_pixels(img: np.ndarray, layers: dict | None = None, light_radiance: float = 0.0) -> str | None:
+    """What is wrong with a rendered image, or None: non-finite values, or values over ABSURD_FACTOR times the
+    larger of the median positive pixel and the brightest radiance a light emits (light_radiance: a pixel that sees
+    a light has at most its radiance). A legitimate highlight or caustic is orders of magnitude below that; an
+    estimator that diverged, as the bounced light of a thick marble sphere once did, is far above."""
+    for name, a in (("the image", img), *((f"layer {k!r}", v) for k, v in (layers or {}).items())):
+        bad = ~np.isfinite(a)
+        if bad.any():
+            return f"{name} has {int(bad.any(axis=-1).sum())} pixels with non-finite values"
+    lum = img.mean(axis=-1)
+    positive = lum[lum > 0]
+    if len(positive):
+        limit = ABSURD_FACTOR * max(float(np.median(positive)), light_radiance)
+        top = float(lum.max())
+        if top > limit:
+            return (f"the image has {int((lum > limit).sum())} pixels brighter than {ABSURD_FACTOR:g} x the median "
+                    f"lit pixel (up to {top:.3g})")
+    return None
 
 
 def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview: Path | None = None,
@@ -100,6 +124,9 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
         meta["surface_paths_setting"] = scene.render.pbl.surface_paths
     write_exr(out_path, img.astype(np.float32), meta,
               layers={k: v.astype(np.float32) for k, v in layers.items()} if layers else None)
+    problem = implausible_pixels(img, layers, float(built.lights[:, LIGHT_RGB:LIGHT_RGB + 3].max(initial=0.0)))
+    if problem:
+        raise PbvolError(f"{out_path}: written, but {problem}: the render failed (please report the scene)")
     if preview is not None:
         write_preview_png(preview, img, exposure)
     summary = {

@@ -12,7 +12,7 @@ from numba import njit
 
 from pbvol_cli.physics.phase import phase_eval
 from pbvol_cli.pointbased.octree import LEAF_WALK_STACK, next_leaf
-from pbvol_cli.pointbased.volume_samples import END_EXTENSION
+from pbvol_cli.pointbased.volume_samples import END_EXTENSION, ENTRY_N, ENTRY_Q
 
 PLANE_PATH_MIN_COS = 0.1  # legs closer than this to grazing their entry plane are attenuated along their axis
 
@@ -51,10 +51,14 @@ def single_scattering(vs, med, q, out):
             if (rx * rx + ry * ry + rz * rz) * math.pi > v_area[i]:
                 continue
             ph = phase_eval(med.phase, med.g, v_dir[i, 0] * wx + v_dir[i, 1] * wy + v_dir[i, 2] * wz) / v_area[i]
-            cn = -(v_plane[i, 0] * v_dir[i, 0] + v_plane[i, 1] * v_dir[i, 1] + v_plane[i, 2] * v_dir[i, 2])
-            tt = t
+            nx, ny, nz, q = v_plane[i, ENTRY_N], v_plane[i, ENTRY_N + 1], v_plane[i, ENTRY_N + 2], v_plane[i, ENTRY_Q]
+            cn = -(nx * v_dir[i, 0] + ny * v_dir[i, 1] + nz * v_dir[i, 2])
             if cn > PLANE_PATH_MIN_COS:
-                tt = (v_plane[i, 0] * (v_start[i, 0] - px) + v_plane[i, 1] * (v_start[i, 1] - py)
-                      + v_plane[i, 2] * (v_start[i, 2] - pz)) / cn
+                # P's depth below the plane where the leg entered, never above it: no beam carries more than the
+                # power it entered with (a point beyond a curved boundary's tangent plane, or in the continuation)
+                depth_p = max(q - (nx * px + ny * py + nz * pz), 0.0)
+                tt = (depth_p - (q - (nx * v_start[i, 0] + ny * v_start[i, 1] + nz * v_start[i, 2]))) / cn
+            else:
+                tt = max(t, 0.0)  # the backward continuation of a grazing leg keeps its entry power
             for c in range(3):
                 out[c] += sig_s[c] * ph * v_power[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * tt)

@@ -74,16 +74,12 @@ def test_index_matched_furnace(tmp_path):
     assert abs(centre - 1.0) < 0.05, centre
 
 
-@pytest.mark.xfail(strict=True, reason="known: the thick isotropic furnace behind eta 1.44 renders ~1.18 (docs/pbl.md, "
-                   "open problems): the multiple term is a few % high in a thick body (1.03 index-matched) and the "
-                   "bounced generations compound it")
 def test_thick_isotropic_furnace_behind_a_dielectric_boundary(tmp_path):
     """A non-absorbing isotropic sphere 7.7 mean free paths in radius behind eta = 1.44 under a white sky must
-    render 1 at its centre. It rendered about 4 (bounced layer ~3.5) until each source point took its own boundary
-    plane and the table its window, about 1.8 then, 1.4 once single scattering's smoothing bias went (bounced
-    ~0.8), 1.37 with the multiple term's cut drawn by importance, 1.18 with P's plane as a second image (at
-    2 spp the centre's noise is about 0.1: 8 spp here): an open bias, kept here as an expected failure
-    so that its fix shows (strict: the test fails once this passes, and the marker must go)."""
+    render 1 at its centre (at 8 spp the centre's noise is about 0.05). It read 1.18 while bounced beams leaving the
+    boundary at grazing angles were amplified in their single scattering's continuation (1.10 without that) and
+    while the gather said more light arrived at the boundary than the generation had scattered (1.03 with both
+    bounds: docs/pbl.md, bounced light)."""
     shape = {"type": "sphere", "radius": 1.0, "interface": "dielectric", "eta": 1.44,
              "medium": {"albedo": 1.0, "mean_free_path": 0.13, "g": 0.0}}
     scene = {"camera": camera((16, 16), position=(0, 0, 3.0), fov=30), "render": {"spp": 8},

@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pytest
 
 from conftest import (SPHERE_G, SPHERE_LIGHT_DIR, SPHERE_SIGMA_A, SPHERE_SIGMA_S, build, medium_sphere_scene,
                       single_scattering_reference, write_scene)
@@ -70,3 +71,29 @@ def test_single_scattering_of_coarse_oblique_beams_under_a_flat_boundary_is_unbi
         mean, se = np.mean(got), np.std(got) / math.sqrt(len(got))
         print("depth", z, "mean / exact", mean / exact, "se", se / exact)
         assert abs(mean / exact - 1.0) < max(4 * se / exact, 0.03), (z, mean / exact)
+
+
+@pytest.mark.parametrize("grazing", [True, False])
+def test_no_beam_carries_more_than_the_power_it_entered_with(grazing):
+    """A leg that starts on the boundary, with P in its backward continuation (grazing: the attenuation is taken
+    along the axis, t < 0) or above its entry plane (a curved boundary's tangent plane, P beyond it): the estimate
+    is the entry power's, sigma_s p Phi / A, never amplified by e^(sigma_t |t|). Amplified, bounced beams leaving the
+    boundary at grazing angles in a dense medium (marble, 270 mean free paths across) made each generation of
+    bounced light 10^8 times the last."""
+    sig_t, alb, r = 10.0, 0.9, 0.5
+    cos_in = 0.05 if grazing else 0.6  # cosine between the leg and the inward normal -y
+    d = np.array([math.sqrt(1 - cos_in ** 2), -cos_in, 0.0])
+    start, area, power = np.zeros((1, 3)), np.full(1, math.pi * r * r), np.ones((1, 3))
+    plane = np.array([[0.0, 1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 30.0]])  # entry plane y = 0, normal +y (outward)
+    tree = build_octree(start + 5 * d, start - 10.0, start + 10.0, d[None], power).arrays()
+    vs = VolumeSamples(tree, start, d[None], np.full(1, 10.0), power, area, start + 5 * d, power, np.full(1, r),
+                       np.ones(1, np.int64), plane, (empty_table().render_args(),) * 3, 0.0)
+    med = Medium(np.full(3, sig_t * (1 - alb)), np.full(3, sig_t * alb), 0, 0.0)
+    # grazing: 1.2 beam radii behind the start on the axis (in the continuation, t < 0); steep: on the disc, at
+    # t = 0, 0.9 radii above the entry plane's side
+    P = -1.2 * r * d if grazing else 0.9 * r * np.array([-d[1], d[0], 0.0]) * np.sign(d[0])
+    assert grazing or P[1] > 0
+    out = np.zeros(3)
+    single_scattering(vs, med, Query(*P, 0.0, 0.0, 1.0, NO_PLANE), out)
+    entry = med.sigma_s[0] * phase_eval(0, 0.0, 0.0) * power[0, 0] / area[0]
+    assert out[0] > 0 and out[0] <= entry * (1 + 1e-12), (out[0], entry)
