@@ -120,7 +120,7 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
     if opts.method == "pbl":  # camera paths per pixel and pass (the mean over passes; 0 in the setting: auto)
         ks = stats["surface_paths"]
         meta["surface_paths"] = float(np.mean(ks))
-        meta["surface_paths_per_pass"] = ",".join(str(k) for k in ks)
+        meta["surface_paths_per_pass"] = ",".join(f"{k:.4g}" for k in ks)
         meta["surface_paths_setting"] = scene.render.pbl.surface_paths
     write_exr(out_path, img.astype(np.float32), meta,
               layers={k: v.astype(np.float32) for k, v in layers.items()} if layers else None)

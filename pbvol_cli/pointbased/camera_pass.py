@@ -32,7 +32,7 @@ from pbvol_cli.physics.sampling import cosine_hemisphere, rand
 from pbvol_cli.pointbased.gather import (LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_SINGLE, eval_segments, gather_settings,
                                          segment_planes)
 from pbvol_cli.pointbased.volume_samples import medium_params, scattered_share
-from pbvol_cli.render.camera import generate_camera_rays
+from pbvol_cli.render.camera import camera_rays_for
 from pbvol_cli.render.interfaces import dielectric_fresnel, incident_side, indices, medium_beyond, shadow_ray_length
 
 COMPONENTS = ("single", "double", "multiple", "bounced")
@@ -178,54 +178,96 @@ def _interact_one(i, surfaces, lights, rays, hits, limits, emit, children, shado
         child_ok[j] = True
 
 
-# surface_paths = 0 (auto): the first two passes trace AUTO_FIRST_PATHS paths per pixel; from then on each pass
-# takes k = sqrt(PASS_COST_RATIO S1 / M) (auto_surface_paths), measured on the passes before it
+# surface_paths = 0 (auto): the first two passes trace AUTO_FIRST_PATHS paths per pixel; from then on each pixel's
+# count is sqrt(PASS_COST_RATIO S1_p / M) (auto_surface_paths), from the passes before it
 AUTO_FIRST_PATHS = 8
-AUTO_MAX_PATHS = 128
+AUTO_MAX_PATHS = 128  # the mean over the pixels, at most
+AUTO_MAX_PIXEL_PATHS = 1024  # one pixel's, at most (a small light's mirror image on glass wants hundreds)
 PASS_COST_RATIO = 20.0  # a pass's medium work in surface paths per pixel (docs/pbl.md). The optimum is flat in it
 # (k goes as its square root), and a constant keeps the image independent of timings
 
 
-def auto_surface_paths(s1: float, m: float) -> int:
-    """Camera paths per pixel for the next pass. A pass with k paths costs about c (k + R) (R = PASS_COST_RATIO)
-    and leaves a variance S1 / k + M (S1: one surface path's, M: the medium evaluation's, both relative as
-    compare's relMSE): the product, the error at equal time, is least at k = sqrt(R S1 / M)."""
-    if not s1 > 0.0:
-        return 1
-    if not m > 0.0:
-        return AUTO_MAX_PATHS
-    return int(min(AUTO_MAX_PATHS, max(1, round(math.sqrt(PASS_COST_RATIO * s1 / m)))))
+def auto_surface_paths(s1, m: float, max_paths: int = AUTO_MAX_PATHS):
+    """Camera paths for the next pass, for one pixel or an array of them. A pass whose pixel p traces k_p paths
+    costs about c (sum k_p + R n) (R = PASS_COST_RATIO, n pixels) and leaves a variance sum S1_p / k_p + M_p (S1_p:
+    one surface path's, M_p: the medium evaluation's, both relative as compare's relMSE); at equal time the error
+    is least at k_p = sqrt(R S1_p / M), M the pixels' mean M_p (for one pixel: k = sqrt(R S1 / M))."""
+    s1 = np.asarray(s1, float)
+    if m > 0.0:
+        k = np.clip(np.rint(np.sqrt(PASS_COST_RATIO * np.maximum(s1, 0.0) / m)), 1, max_paths)
+    else:
+        k = np.full(s1.shape, float(max_paths))
+    k = np.where(s1 > 0.0, k, 1.0).astype(np.int64)
+    return int(k) if k.ndim == 0 else k
 
 
-class PassStatistics:
-    """The two variances auto_surface_paths weighs, from the passes so far, relative per pixel and channel as
-    compare's relMSE (over the image so far squared + 0.01): the surface paths' spread within a pass (one path's
-    variance) and the medium's from pass to pass (one evaluation per pixel and pass)."""
+def _spread(values: np.ndarray, width: int) -> np.ndarray:
+    """Each pixel's value raised to the mean of its 3 x 3 neighbourhood where that is larger: a rare event (a
+    caustic path) seen in one pixel is likely in its neighbours too."""
+    img = values.reshape(-1, width)
+    pad = np.pad(img, 1, mode="edge")
+    box = sum(pad[1 + dy:1 + dy + img.shape[0], 1 + dx:1 + dx + img.shape[1]] for dy in (-1, 0, 1)
+              for dx in (-1, 0, 1)) / 9.0
+    return np.maximum(img, box).ravel()
 
-    def __init__(self, npix: int):
-        self.surface_var = np.zeros((npix, 3))  # sum over passes of the within-pass variance of one path
-        self.surface_passes = 0
+
+class PixelStatistics:
+    """The variances auto_surface_paths weighs, from the passes so far, relative per pixel and channel as
+    compare's relMSE (over the image so far squared + 0.01): each pixel's surface paths' (every path it traced: they
+    are independent and alike) and the medium's from pass to pass (one evaluation per pixel and pass)."""
+
+    def __init__(self, npix: int, width: int):
+        self.width = width
+        self.count = np.zeros(npix)  # surface paths traced per pixel
+        self.surface_sum, self.surface_sq = np.zeros((npix, 3)), np.zeros((npix, 3))
         self.medium_sum, self.medium_sq = np.zeros((npix, 3)), np.zeros((npix, 3))
         self.passes = 0
 
-    def add(self, k: int, surface_sum, surface_sq, medium):
-        """A pass: its per-pixel sum and sum of squares over its k surface paths, and its medium estimate."""
-        if k > 1:
-            self.surface_var += np.maximum(surface_sq - surface_sum ** 2 / k, 0.0) / (k - 1)
-            self.surface_passes += 1
+    def add(self, k: np.ndarray, surface_sum, surface_sq, medium):
+        """A pass: each pixel's path count k, the sum and sum of squares of its paths' surface light, and its
+        medium estimate."""
+        self.count += k
+        self.surface_sum += surface_sum
+        self.surface_sq += surface_sq
         self.medium_sum += medium
         self.medium_sq += medium ** 2
         self.passes += 1
 
-    def next_paths(self, image) -> int | None:
-        """k for the next pass, or None while two passes (one of them with k > 1) are not yet in."""
-        if self.passes < 2 or self.surface_passes < 1:
-            return None
+    def variances(self, image) -> tuple[np.ndarray, float]:
+        """(one surface path's relative variance per pixel, the medium's mean relative variance)."""
         den = image ** 2 + 1e-2
-        s1 = float((self.surface_var / self.surface_passes / den).mean())
+        n = self.count[:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            var = np.where(n > 1, np.maximum(self.surface_sq - self.surface_sum ** 2 / n, 0.0) / (n - 1), 0.0)
         p = self.passes
         m = float((np.maximum(self.medium_sq - self.medium_sum ** 2 / p, 0.0) / (p - 1) / den).mean())
-        return auto_surface_paths(s1, m)
+        return (var / den).mean(axis=1), m
+
+    def next_paths(self, image) -> np.ndarray | None:
+        """Each pixel's path count for the next pass, or None while two passes are not yet in. The counts' mean is
+        at most AUTO_MAX_PATHS."""
+        if self.passes < 2 or self.count.max() < 2:
+            return None
+        s1, m = self.variances(image)
+        k = auto_surface_paths(_spread(s1, self.width), m, AUTO_MAX_PIXEL_PATHS)
+        if k.mean() > AUTO_MAX_PATHS:
+            k = np.maximum(1, (k * (AUTO_MAX_PATHS / k.mean())).astype(np.int64))
+        return k
+
+
+def pass_paths(k: np.ndarray, first: np.ndarray):
+    """A pass's camera paths in tracing order, sample by sample (every pixel's first, then the second of those
+    with two or more...): (pixel, sample index of the pixel, index of the path among its pixel's in this pass).
+    k: paths per pixel in this pass; first: each pixel's sample index so far."""
+    pixels, ranks = [], []
+    step = 64
+    for s0 in range(0, int(k.max()), step):
+        s = np.arange(s0, min(s0 + step, int(k.max())))[:, None]
+        rank, pix = np.nonzero(s < k[None, :])
+        pixels.append(pix)
+        ranks.append(rank + s0)
+    pixels, ranks = np.concatenate(pixels), np.concatenate(ranks)
+    return pixels, first[pixels] + ranks, ranks
 
 
 def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads: int, progress=None,
@@ -233,14 +275,15 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     """Renders spp passes with the settings pbl (config.PblSettings); pass p uses the light samples
     media_for_pass(p) ({medium: (SampleSet of the lights' samples, SampleSet of the bounced samples or None)}).
 
-    A pass traces k camera paths per pixel: all of them shade surfaces, and one of them, chosen uniformly at random
-    per pixel and pass, also evaluates the medium, its medium terms weighted by k. The pixel's estimate stays
-    unbiased and the medium's cost per pass is that of one path, while the surfaces' noise (path traced like
-    volpath's) falls k times. k is pbl.surface_paths, or with 0 (auto) chosen per pass from the variances measured
-    on the passes before it (auto_surface_paths). bounced_terms: the estimators that evaluate the bounced samples
-    (all three make the bounced layer; tests take a subset). time_limit (seconds): no pass starts after it.
-    Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats; stats["spp"]: the passes rendered,
-    stats["surface_paths"]: k of each pass)."""
+    A pass traces k_p camera paths for pixel p: all of them shade surfaces, and one of them, chosen uniformly at
+    random per pixel and pass, also evaluates the medium, its medium terms weighted by k_p. The pixel's estimate
+    stays unbiased and the medium's cost per pass is that of one path, while the surfaces' noise (path traced like
+    volpath's) falls k_p times. k_p is pbl.surface_paths for every pixel, or with 0 (auto) chosen per pixel and pass
+    from the variances measured on the passes before it (auto_surface_paths): a small light's mirror image on a
+    glass takes hundreds of paths, a pixel of the medium alone one. bounced_terms: the estimators that evaluate the
+    bounced samples (all three make the bounced layer; tests take a subset). time_limit (seconds): no pass starts
+    after it. Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats; stats["spp"]: the passes rendered,
+    stats["surface_paths"]: the mean paths per pixel of each pass)."""
     W, H = bs.resolution
     npix = W * H
     settings = gather_settings(pbl, pbl.components)
@@ -250,40 +293,50 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     pool = ThreadPoolExecutor(threads) if threads > 1 else None
     names = (*COMPONENTS, "surface")
     layers = {name: np.zeros((npix, 3)) for name in names}
-    stats = PassStatistics(npix)
+    stats = PixelStatistics(npix, W)
     ks = []
     t0 = time.perf_counter()
     chunk = 1 << 18
-    done = 0  # camera paths traced so far: path g is camera sample g // npix of pixel g % npix
+    done = 0  # camera paths traced so far
+    samples_so_far = np.zeros(npix, np.int64)  # each pixel's (its next path's sample index)
     passes = 0
     for p in range(spp):
         if time_limit is not None and p > 0 and time.perf_counter() - t0 > time_limit:
             break
         passes += 1
-        k = pbl.surface_paths
-        if k == 0:  # auto: from the passes so far, once two are in (the image so far weighs them as relMSE does)
-            k = (p and stats.next_paths(sum(layers.values()) / p)) or AUTO_FIRST_PATHS
-        ks.append(k)
+        if pbl.surface_paths > 0:
+            k = np.full(npix, pbl.surface_paths, np.int64)
+        else:  # auto: from the passes so far, once two are in (the image so far weighs them as relMSE does)
+            k = stats.next_paths(sum(layers.values()) / p) if p else None
+            if k is None:
+                k = np.full(npix, AUTO_FIRST_PATHS, np.int64)
+        ks.append(float(k.mean()))
         media_data = media_for_pass(p)
         # which of the pixel's k paths evaluates the medium in this pass (k = 1: every path)
-        chosen = np.random.default_rng([seed, p, 0x5EC7]).integers(0, k, npix) if k > 1 else np.zeros(npix, np.int64)
-        per_pass = npix * k
+        draw = np.random.default_rng([seed, p, 0x5EC7])
+        if k.min() == k.max():
+            chosen = draw.integers(0, k[0], npix) if k[0] > 1 else np.zeros(npix, np.int64)
+        else:
+            chosen = draw.integers(0, k)
+        pixels, samples, ranks = pass_paths(k, samples_so_far)
+        evm = ranks == chosen[pixels]
         acc = {name: np.zeros((npix, 3)) for name in names}
         surface_sq = np.zeros((npix, 3))
+        per_pass = len(pixels)
         for c0 in range(0, per_pass, chunk):
-            n = min(chunk, per_pass - c0)
-            path_surface = np.zeros((n, 3))
-            _trace_batch(bs, caster, pool, threads, media_data, seed, done + c0, n, npix, settings, settings_b, pbl,
-                         acc, chosen, k, path_surface)
-            pix = (done + c0 + np.arange(n)) % npix
+            part = slice(c0, min(c0 + chunk, per_pass))
+            path_surface = _trace_batch(bs, caster, pool, threads, media_data, seed, done + c0, pixels[part],
+                                        samples[part], evm[part], k[pixels[part]], npix, settings, settings_b, pbl,
+                                        acc)
             for ch in range(3):
-                surface_sq[:, ch] += np.bincount(pix, weights=path_surface[:, ch] ** 2, minlength=npix)
+                surface_sq[:, ch] += np.bincount(pixels[part], weights=path_surface[:, ch] ** 2, minlength=npix)
             if progress is not None:
-                progress(p * npix + (c0 + n) * npix // per_pass, spp * npix)
+                progress(p * npix + part.stop * npix // per_pass, spp * npix)
         done += per_pass
+        samples_so_far += k
         for name in names:
-            layers[name] += acc[name] / k
-        stats.add(k, acc["surface"], surface_sq, sum(acc[c] for c in COMPONENTS) / k)
+            layers[name] += acc[name] / k[:, None]
+        stats.add(k, acc["surface"], surface_sq, sum(acc[c] for c in COMPONENTS) / k[:, None])
     caster.close()
     if pool is not None:
         pool.shutdown()
@@ -292,19 +345,18 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     return image, out, {"time_s": time.perf_counter() - t0, "spp": passes, "surface_paths": ks}
 
 
-def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, settings, settings_b, pbl, layers,
-                 chosen, kpaths, path_surface):
-    """n camera paths starting at global path index `done`, traced to the end, added into layers. Path g is
-    camera sample g // npix of pixel g % npix; it evaluates the medium (weight kpaths) where its sample's index
-    within its pass, (g // npix) % kpaths, is chosen[pixel] (a pass's k consecutive samples cover every residue
-    once, wherever it starts). path_surface (n, 3): each path's surface light, added to."""
+def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samples, evm, kpaths, npix, settings,
+                 settings_b, pbl, layers):
+    """Camera paths (sample samples[i] of pixel pixels[i]; `done` paths traced before them in this render), traced to
+    the end, added into layers. Path i evaluates the medium where evm[i], its medium terms weighted kpaths[i] (its
+    pixel's path count in this pass). Returns each path's surface light (n, 3)."""
+    n = len(pixels)
     pos, dirs = np.zeros((n, 3)), np.zeros((n, 3))
-    pixel = np.zeros(n, np.int64)
     rng = np.zeros(n, np.uint64)
-    generate_camera_rays(bs.camera, seed, done, n, pos, dirs, pixel, rng)
-    gidx = np.arange(done, done + n, dtype=np.int64)
+    camera_rays_for(bs.camera, seed, pixels, samples, pos, dirs, rng)
+    pixel = pixels
     path = np.arange(n)  # each ray's camera path within the batch
-    evm = (gidx // npix) % kpaths == chosen[pixel]  # the paths that evaluate the medium
+    path_surface = np.zeros((n, 3))
     beta = np.ones((n, 3))
     roulette_rng = np.random.default_rng([seed, done])
     medium = np.full(n, -1, np.int64)
@@ -332,7 +384,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
                 keep = roulette_rng.random(len(ms)) < q
                 ev = ms[keep]
                 beta_ev = beta.copy()
-                beta_ev[ev] /= (q[keep] / kpaths)[:, None]
+                beta_ev[ev] /= (q[keep] / kpaths[ev])[:, None]
                 eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, med, lit.kernel, settings, contrib,
                               state >> 2, planes)
                 if bounced is not None and bounced.count:
@@ -372,5 +424,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, n, npix, set
         pos, dirs, beta = children.pos[keep], children.dir[keep], children.beta[keep]
         medium, state = children.medium[keep], children.state[keep]
         depth, pixel, evm, path = depth[parent] + 1, pixel[parent], evm[parent], path[parent]
+        kpaths = kpaths[parent]
         n_start = ng[parent]  # a child leaves the surface its parent met
         rng = rng[parent] ^ (np.uint64(0x9E37) * (keep.nonzero()[0] % 2 + 1).astype(np.uint64))
+    return path_surface

@@ -1,7 +1,6 @@
 """The render stage refuses to pass off a failed image as a result."""
 
 import numpy as np
-import pytest
 from typer.testing import CliRunner
 
 from conftest import camera, write_scene

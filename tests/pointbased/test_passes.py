@@ -2,7 +2,6 @@
 reproducibility."""
 
 import numpy as np
-import pytest
 
 from conftest import build, camera, medium_sphere_scene, volpath, write_scene
 from pbvol_cli.imageio import read_exr, read_layers
