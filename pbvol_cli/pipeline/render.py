@@ -13,7 +13,7 @@ from pbvol_cli import __version__
 from pbvol_cli import config as C
 from pbvol_cli.errors import PbvolError
 from pbvol_cli.physics.lights import LIGHT_RGB
-from pbvol_cli.pipeline.progress import peak_memory_mb, progress_bar, set_threads
+from pbvol_cli.pipeline.progress import CompileMonitor, peak_memory_mb, progress_bar, set_threads
 
 METHODS = ("volpath", "pbl")
 
@@ -93,22 +93,23 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
         raise PbvolError(f"{reference}: reference is {ref_img.shape[1]}x{ref_img.shape[0]}, render is {W}x{H}")
 
     layers, stages = None, {}
-    if opts.method == "pbl":
-        img, layers, stats, stages = _render_pbl(scene, built, spp, seed, threads, time_limit, opts)
-        spp_done = stats["spp"]
-    else:
-        from pbvol_cli.render.volpath import orders_mask, render_volpath
+    with CompileMonitor(opts.quiet) as compiling:
+        if opts.method == "pbl":
+            img, layers, stats, stages = _render_pbl(scene, built, spp, seed, threads, time_limit, opts)
+            spp_done = stats["spp"]
+        else:
+            from pbvol_cli.render.volpath import orders_mask, render_volpath
 
-        try:
-            orders_mask(opts.orders)
-        except ValueError as e:
-            raise PbvolError(f"--orders: {e}") from None
-        prog, update = progress_bar(opts.quiet, f"volpath {W}x{H} {spp} spp")
-        with prog:
-            img, spp_done, stats = render_volpath(
-                built, spp, seed, max_depth, rs.volpath.rr_depth, opts.orders, rs.volpath.batch_paths, threads,
-                time_limit, update,
-            )
+            try:
+                orders_mask(opts.orders)
+            except ValueError as e:
+                raise PbvolError(f"--orders: {e}") from None
+            prog, update = progress_bar(opts.quiet, f"volpath {W}x{H} {spp} spp")
+            with prog:
+                img, spp_done, stats = render_volpath(
+                    built, spp, seed, max_depth, rs.volpath.rr_depth, opts.orders, rs.volpath.batch_paths, threads,
+                    time_limit, update,
+                )
     elapsed = stats["time_s"]
     meta = {
         "method": opts.method, "spp": spp_done, "seed": seed, "threads": threads,
@@ -132,7 +133,7 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
     summary = {
         "output": str(out_path), "method": opts.method, "resolution": [W, H], "spp": spp_done,
         "time_s": elapsed, "samples_per_second": W * H * spp_done / max(elapsed, 1e-9),
-        "peak_memory_mb": peak_memory_mb(), "threads": threads,
+        "peak_memory_mb": peak_memory_mb(), "threads": threads, "compile_s": compiling.seconds,
     }
     if stages:
         summary["stages"] = stages
@@ -200,6 +201,8 @@ def format_summary(s: dict) -> str:
     line = (f"{s['method']}: {s['resolution'][0]}x{s['resolution'][1]}, {s['spp']} spp in {s['time_s']:.2f} s "
             f"({s['samples_per_second'] / 1e6:.3f} M samples/s, {s['threads']} threads), "
             f"peak memory {s['peak_memory_mb']:.0f} MiB -> {s['output']}")
+    if s.get("compile_s", 0.0) >= 1.0:
+        line += f"\ncompiling numba kernels took {s['compile_s']:.0f} s of it (once: cached for later runs)"
     st = s.get("stages")
     if st:
         line += (f"\nstages: light samples {st['samples_s']:.2f} s"
