@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal, Union
 
 import numpy as np
+from pydantic import Strict as NoCoercion
 from pydantic import (
     AfterValidator,
     BaseModel,
@@ -51,8 +52,13 @@ def _rgb_schema(**bounds) -> WithJsonSchema:
                            "description": "one number (grey: the same for R, G and B) or [R, G, B]"})
 
 
-RGB = Annotated[tuple[float, float, float], BeforeValidator(_rgb), _rgb_schema()]
-Vec3 = tuple[float, float, float]
+# Numbers as TOML writes them: a bool is not a number (`fov = true` is refused, not read as 1), an integer is a
+# float; NaN and infinity are refused by the models' config (allow_inf_nan).
+Num = Annotated[float, NoCoercion()]
+Int = Annotated[int, NoCoercion()]
+Bool = Annotated[bool, NoCoercion()]
+RGB = Annotated[tuple[Num, Num, Num], BeforeValidator(_rgb), _rgb_schema()]
+Vec3 = tuple[Num, Num, Num]
 
 
 def _albedo(v):
@@ -69,7 +75,7 @@ def _positive_lengths(v):
 
 def _non_negative(v):
     if not all(math.isfinite(x) and x >= 0 for x in v):
-        raise ValueError(f"expected non-negative coefficients, got {list(v)}")
+        raise ValueError(f"expected non-negative values, got {list(v)}")
     return v
 
 
@@ -83,6 +89,7 @@ def _eta(v):
 Albedo = Annotated[RGB, AfterValidator(_albedo), _rgb_schema(minimum=0, maximum=1)]
 Lengths3 = Annotated[RGB, AfterValidator(_positive_lengths), _rgb_schema(exclusiveMinimum=0)]
 Coefficients = Annotated[RGB, AfterValidator(_non_negative), _rgb_schema(minimum=0)]
+Emission = Coefficients  # a light's radiance, intensity, irradiance or power: a negative one would subtract light
 Eta = Annotated[float, AfterValidator(_eta), WithJsonSchema({"type": "number", "exclusiveMinimum": 0})]
 
 
@@ -93,7 +100,7 @@ def _finite(v: tuple[float, ...], what: str) -> tuple[float, ...]:
 
 
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 # --------------------------------------------------------------------------- materials
@@ -116,14 +123,14 @@ class Material(Strict):
     sigma_s: Coefficients | None = Field(None, description="scattering coefficient, 1/length_unit; with sigma_a")
     sigma_s_reduced: Coefficients | None = Field(None, description="reduced scattering coefficient (1 - g) sigma_s, "
                                                  "1/length_unit; with sigma_a (sigma_s = sigma_s_reduced / (1 - g))")
-    g: float = Field(0.0, description="mean cosine of the phase function, -1 < g < 1 (0: isotropic)",
+    g: Num = Field(0.0, description="mean cosine of the phase function, -1 < g < 1 (0: isotropic)",
                      json_schema_extra={"exclusiveMinimum": -1, "exclusiveMaximum": 1})
     phase: Literal["isotropic", "hg", "schlick", "rayleigh", "mie_hazy", "mie_murky"] = Field(
         "hg", description="phase function: Henyey-Greenstein, Schlick's approximation of it (both with g), "
         "isotropic, Rayleigh, or the hazy / murky Mie lobes of Nishita et al.")
     eta: Eta = Field(1.0, description="refractive index of the medium, the default index of a dielectric shape "
                      "holding it")
-    scale: float = Field(1.0, description="density: multiplies sigma_a and sigma_s",
+    scale: Num = Field(1.0, description="density: multiplies sigma_a and sigma_s",
                          json_schema_extra={"exclusiveMinimum": 0})
     diffuse_reflectance: Albedo | None = Field(None, description="informational only (Jensen et al. 2001's "
                                                "measured R_d); not used by the renderer")
@@ -170,10 +177,16 @@ class Material(Strict):
         if stray:
             raise ValueError(f"{', '.join(stray)} cannot be combined with {self.FORMS[form]}; "
                              f"expected exactly one of {names}")
+        _finite_coefficients(*self.coefficients(self.length_unit))
         return self
 
     def coefficients(self, scene_unit: str = "scene") -> tuple[np.ndarray, np.ndarray]:
-        """(sigma_a, sigma_s) per RGB channel, in 1/scene-unit (float64 arrays of 3)."""
+        """(sigma_a, sigma_s) per RGB channel, in 1/scene-unit (float64 arrays of 3; infinite where they overflow,
+        which the validators refuse)."""
+        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+            return self._coefficients(scene_unit)
+
+    def _coefficients(self, scene_unit: str) -> tuple[np.ndarray, np.ndarray]:
         form = self._form()
         if form == "albedo":
             alb = np.asarray(self.albedo, float)
@@ -186,6 +199,15 @@ class Material(Strict):
             sa, ss = np.asarray(self.sigma_a, float), np.asarray(self.sigma_s, float)
         factor = self.scale * length_conversion(self.length_unit, scene_unit)
         return sa * factor, ss * factor
+
+
+def _finite_coefficients(sigma_a: np.ndarray, sigma_s: np.ndarray):
+    """Refuse coefficients that overflow (a mean free path of 1e-320, a huge scale): sigma_t would be infinite
+    and the albedo NaN."""
+    if not (np.all(np.isfinite(sigma_a)) and np.all(np.isfinite(sigma_s)) and np.all(np.isfinite(sigma_a + sigma_s))):
+        raise ValueError(f"coefficients overflow: sigma_a {[float(x) for x in sigma_a]}, sigma_s "
+                         f"{[float(x) for x in sigma_s]}; expected finite values (a mean free path or scale out of "
+                         "range)")
 
 
 def length_conversion(material_unit: str, scene_unit: str) -> float:
@@ -204,6 +226,14 @@ def length_conversion(material_unit: str, scene_unit: str) -> float:
 # --------------------------------------------------------------------------- camera, settings
 
 
+# Bounds the command line's options share with the scene's fields.
+MAX_SPP = 1 << 24
+MAX_DEPTH = 10_000_000
+MAX_SEED = 2**32 - 1
+MAX_THREADS = 1024
+MAX_RESOLUTION = 16384
+
+
 class Camera(Strict):
     """A pinhole camera."""
 
@@ -211,9 +241,9 @@ class Camera(Strict):
     look_at: Vec3 = Field(description="the point at the image's centre, scene units")
     up: Vec3 = Field((0.0, 1.0, 0.0), description="the direction that is up in the image (not parallel to the "
                      "viewing direction)")
-    fov: float = Field(40.0, description="full vertical field of view, degrees",
+    fov: Num = Field(40.0, description="full vertical field of view, degrees",
                        json_schema_extra={"exclusiveMinimum": 0, "exclusiveMaximum": 180})
-    resolution: tuple[int, int] = Field((256, 256), description="[width, height] in pixels, 1 to 16384 each")
+    resolution: tuple[Int, Int] = Field((256, 256), description="[width, height] in pixels, 1 to 16384 each")
 
     @field_validator("fov")
     @classmethod
@@ -225,8 +255,8 @@ class Camera(Strict):
     @field_validator("resolution")
     @classmethod
     def _res(cls, v):
-        if not all(1 <= x <= 16384 for x in v):
-            raise ValueError(f"expected [width, height] between 1 and 16384, got {list(v)}")
+        if not all(1 <= x <= MAX_RESOLUTION for x in v):
+            raise ValueError(f"expected [width, height] between 1 and {MAX_RESOLUTION}, got {list(v)}")
         return v
 
     @model_validator(mode="after")
@@ -243,21 +273,21 @@ class Camera(Strict):
 class VolpathSettings(Strict):
     """The reference path tracer (`--method volpath`)."""
 
-    rr_depth: int = Field(8, ge=0, description="bounce count from which Russian roulette applies")
-    batch_paths: int = Field(1 << 19, ge=1024, description="paths traced per wavefront batch (memory vs. overhead)")
+    rr_depth: Int = Field(8, ge=0, description="bounce count from which Russian roulette applies")
+    batch_paths: Int = Field(1 << 19, ge=1024, description="paths traced per wavefront batch (memory vs. overhead)")
 
 
 class LutSettings(Strict):
     """The multiple-scattering table (precompute-lut). Lengths in mean free paths."""
 
-    particles: int | None = Field(None, ge=1000, description="particles simulated per table (default: as many as "
+    particles: Int | None = Field(None, ge=1000, description="particles simulated per table (default: as many as "
                                   "the collision budget allows)")
-    collision_budget: int = Field(80_000_000, ge=100_000, description="collisions simulated per table when "
+    collision_budget: Int = Field(80_000_000, ge=100_000, description="collisions simulated per table when "
                                   "particles is not given")
-    seed: int = Field(0, ge=0, description="the simulation's random seed")
-    extent: float = Field(40.0, gt=0, description="table half-size, mean free paths (light beyond it is lost)")
-    sh_order: int = Field(12, ge=2, le=24, description="spherical-harmonics order of the stored lobes")
-    merge_tol: float = Field(0.05, ge=0, description="relative difference of lobe shapes below which neighbouring "
+    seed: Int = Field(0, ge=0, description="the simulation's random seed")
+    extent: Num = Field(40.0, gt=0, description="table half-size, mean free paths (light beyond it is lost)")
+    sh_order: Int = Field(12, ge=2, le=24, description="spherical-harmonics order of the stored lobes")
+    merge_tol: Num = Field(0.05, ge=0, description="relative difference of lobe shapes below which neighbouring "
                              "cells share one (quadtree merge)")
 
 
@@ -265,34 +295,34 @@ class LutSettings(Strict):
 class PblSettings(Strict):
     """The point-based method: light samples and their use along camera rays (defaults: what the benchmark uses)."""
 
-    surface_samples: int = Field(20000, ge=16, description="light surface samples (blue noise) on the outer layers "
+    surface_samples: Int = Field(20000, ge=16, description="light surface samples (blue noise) on the outer layers "
                                  "of the medium-holding shapes, about")
-    segments_per_beam: int = Field(16, ge=1, description="volume samples per beam and internal reflection")
-    max_internal_reflections: int = Field(8, ge=0, description="internal reflections a beam is followed through")
-    max_layers: int = Field(8, ge=1, description="transparent interfaces a beam may cross to reach the medium")
-    beam_width: float = Field(2.0, ge=0.5, description="single scattering's kernel radius over the beam's radius "
+    segments_per_beam: Int = Field(16, ge=1, description="volume samples per beam and internal reflection")
+    max_internal_reflections: Int = Field(8, ge=0, description="internal reflections a beam is followed through")
+    max_layers: Int = Field(8, ge=1, description="transparent interfaces a beam may cross to reach the medium")
+    beam_width: Num = Field(2.0, ge=0.5, description="single scattering's kernel radius over the beam's radius "
                               "(wider: less noise from the light samples, more blur)")
-    kmax: int = Field(4, ge=1, description="points per camera-ray segment in a medium for single scattering (eq. 9)")
-    kmax_scattered: int = Field(1, ge=1, description="points per segment for double and multiple (smooth along rays)")
-    cut_size: int = Field(8, ge=0, description="octree refinements per point for double and multiple scattering "
+    kmax: Int = Field(4, ge=1, description="points per camera-ray segment in a medium for single scattering (eq. 9)")
+    kmax_scattered: Int = Field(1, ge=1, description="points per segment for double and multiple (smooth along rays)")
+    cut_size: Int = Field(8, ge=0, description="octree refinements per point for double and multiple scattering "
                           "(stochastic light cut: more = less noise, more time)")
-    clamp: float = Field(0.02, ge=0, description="smallest radius a source's 1/r^2 is averaged over (double "
+    clamp: Num = Field(0.02, ge=0, description="smallest radius a source's 1/r^2 is averaged over (double "
                          "scattering), scene units")
-    max_split_depth: int = Field(8, ge=1, description="surfaces a camera path meets before it ends (it splits in "
+    max_split_depth: Int = Field(8, ge=1, description="surfaces a camera path meets before it ends (it splits in "
                                  "two at every smooth interface)")
-    diffuse_bounces: int = Field(3, ge=0, description="diffuse bounces of camera paths (indirect light)")
-    kmax_diffuse: int = Field(1, ge=1, description="random points per medium segment after a diffuse bounce")
-    light_sets: int = Field(0, ge=0, description="independent light-sample sets the spp passes cycle through "
+    diffuse_bounces: Int = Field(3, ge=0, description="diffuse bounces of camera paths (indirect light)")
+    kmax_diffuse: Int = Field(1, ge=1, description="random points per medium segment after a diffuse bounce")
+    light_sets: Int = Field(0, ge=0, description="independent light-sample sets the spp passes cycle through "
                             "(0: a new set every pass; 1: the cached set only)")
-    roulette: float = Field(0.1, ge=0, description="camera branches of weight below this evaluate the medium "
+    roulette: Num = Field(0.1, ge=0, description="camera branches of weight below this evaluate the medium "
                             "with probability weight / roulette (0: always)")
-    surface_paths: int = Field(0, ge=0, le=4096, description="camera paths per pixel and pass: the surfaces (path "
+    surface_paths: Int = Field(0, ge=0, le=4096, description="camera paths per pixel and pass: the surfaces (path "
                                "traced, cheap) take them all, the medium one of them chosen at random (weighted: "
                                "unbiased); 0: auto, 8 for the first two passes, then per pass from the surfaces' and "
                                "the medium's measured noise")
-    bounce_samples: int = Field(1000, ge=16, description="boundary points gathering the scattered light that the "
+    bounce_samples: Int = Field(1000, ge=16, description="boundary points gathering the scattered light that the "
                                 "medium's boundary reflects back (sec. 3.10, the bounced layer)")
-    bounce_generations: int = Field(3, ge=0, description="reflections of scattered light followed (0: none)")
+    bounce_generations: Int = Field(3, ge=0, description="reflections of scattered light followed (0: none)")
     components: tuple[Literal["single", "double", "multiple", "bounced"], ...] = Field(
         ("single", "double", "multiple", "bounced"), description="the medium's terms rendered (each is a layer of the "
         "EXR; the command line's --components overrides)")
@@ -301,11 +331,12 @@ class PblSettings(Strict):
 class RenderSettings(Strict):
     """How to render (the command line's options override spp, seed, threads, time_limit and max_depth)."""
 
-    spp: int = Field(64, ge=1, description="samples (volpath) or passes (pbl) per pixel")
-    max_depth: int = Field(1000, ge=1, description="maximum number of scattering events and surface bounces")
-    seed: int = Field(0, ge=0, description="random seed: the same seed and settings give the same image")
-    threads: int | None = Field(None, ge=1, description="worker threads (default: all cores)")
-    time_limit: float | None = Field(None, gt=0, description="seconds; stops after the pass that passes it")
+    spp: Int = Field(64, ge=1, le=MAX_SPP, description="samples (volpath) or passes (pbl) per pixel")
+    max_depth: Int = Field(1000, ge=1, le=MAX_DEPTH, description="maximum number of scattering events and surface "
+                           "bounces")
+    seed: Int = Field(0, ge=0, le=MAX_SEED, description="random seed: the same seed and settings give the same image")
+    threads: Int | None = Field(None, ge=1, le=MAX_THREADS, description="worker threads (default: all cores)")
+    time_limit: Num | None = Field(None, gt=0, description="seconds; stops after the pass that passes it")
     volpath: VolpathSettings = Field(VolpathSettings(), description="[render.volpath]")
     lut: LutSettings = Field(LutSettings(), description="[render.lut]")
     pbl: PblSettings = Field(PblSettings(), description="[render.pbl]")
@@ -314,12 +345,21 @@ class RenderSettings(Strict):
 # --------------------------------------------------------------------------- lights
 
 
+def _finite_emission(light):
+    """Refuse a power that overflows into radiance (a tiny light of huge power)."""
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        radiance = light.emitted_radiance()
+    if not np.all(np.isfinite(radiance)):
+        raise ValueError(f"power {list(light.power)} over this light's area overflows its radiance; expected a "
+                         "finite radiance")
+
+
 class PointLight(Strict):
     """A point light: a delta light, so volpath cannot reach it through a refracting boundary (pbl can)."""
 
     type: Literal["point"]
     position: Vec3 = Field(description="scene units")
-    intensity: RGB = Field(description="radiant intensity, W/sr")
+    intensity: Emission = Field(description="radiant intensity, W/sr")
 
 
 class DirectionalLight(Strict):
@@ -327,7 +367,7 @@ class DirectionalLight(Strict):
 
     type: Literal["directional"]
     direction: Vec3 = Field(description="the direction the light travels (need not be unit length)")
-    irradiance: RGB = Field(description="irradiance on a surface facing the light, W per scene unit^2")
+    irradiance: Emission = Field(description="irradiance on a surface facing the light, W per scene unit^2")
 
     @field_validator("direction")
     @classmethod
@@ -342,14 +382,15 @@ class SphereLight(Strict):
 
     type: Literal["sphere"]
     center: Vec3 = Field(description="scene units")
-    radius: float = Field(gt=0, description="scene units")
-    radiance: RGB | None = Field(None, description="emitted radiance, W sr^-1 per scene unit^2")
-    power: RGB | None = Field(None, description="total emitted flux, W (radiance = power / (pi x 4 pi radius^2))")
+    radius: Num = Field(gt=0, description="scene units")
+    radiance: Emission | None = Field(None, description="emitted radiance, W sr^-1 per scene unit^2")
+    power: Emission | None = Field(None, description="total emitted flux, W (radiance = power / (pi x 4 pi radius^2))")
 
     @model_validator(mode="after")
     def _one(self):
         if (self.radiance is None) == (self.power is None):
             raise ValueError("give exactly one of radiance, power")
+        _finite_emission(self)
         return self
 
     def emitted_radiance(self) -> np.ndarray:
@@ -366,9 +407,9 @@ class QuadLight(Strict):
     corner: Vec3 = Field(description="scene units")
     edge1: Vec3 = Field(description="scene units")
     edge2: Vec3 = Field(description="scene units; edge1 x edge2 is the emitting side's normal")
-    radiance: RGB | None = Field(None, description="emitted radiance, W sr^-1 per scene unit^2")
-    power: RGB | None = Field(None, description="total emitted flux, W (radiance = power / (pi x area x sides))")
-    two_sided: bool = Field(False, description="emit on both sides")
+    radiance: Emission | None = Field(None, description="emitted radiance, W sr^-1 per scene unit^2")
+    power: Emission | None = Field(None, description="total emitted flux, W (radiance = power / (pi x area x sides))")
+    two_sided: Bool = Field(False, description="emit on both sides")
 
     @model_validator(mode="after")
     def _one(self):
@@ -376,6 +417,7 @@ class QuadLight(Strict):
             raise ValueError("give exactly one of radiance, power")
         if np.linalg.norm(np.cross(self.edge1, self.edge2)) == 0:
             raise ValueError("edge1 and edge2 must span a non-zero area")
+        _finite_emission(self)
         return self
 
     def area(self) -> float:
@@ -392,7 +434,7 @@ class EnvironmentLight(Strict):
     """Constant radiance arriving from every direction (a uniform sky)."""
 
     type: Literal["environment"]
-    radiance: RGB = Field(description="radiance, W sr^-1 per scene unit^2")
+    radiance: Emission = Field(description="radiance, W sr^-1 per scene unit^2")
 
 
 Light = Annotated[
@@ -457,7 +499,7 @@ class SphereShape(ShapeBase):
 
     type: Literal["sphere"]
     center: Vec3 = Field((0.0, 0.0, 0.0), description="scene units")
-    radius: float = Field(1.0, gt=0, description="scene units")
+    radius: Num = Field(1.0, gt=0, description="scene units")
 
 
 class BumpySphereShape(ShapeBase):
@@ -465,11 +507,11 @@ class BumpySphereShape(ShapeBase):
 
     type: Literal["bumpy_sphere"]
     center: Vec3 = Field((0.0, 0.0, 0.0), description="scene units")
-    radius: float = Field(1.0, gt=0, description="scene units")
-    amplitude: float = Field(0.1, ge=0, lt=1, description="relative height of the bumps")
-    frequency: float = Field(3.0, gt=0, description="bumps' spatial frequency over the sphere")
-    seed: int = Field(0, ge=0, description="the noise's random seed")
-    subdivisions: int = Field(6, ge=1, le=8, description="icosphere subdivisions (20 x 4^n triangles)")
+    radius: Num = Field(1.0, gt=0, description="scene units")
+    amplitude: Num = Field(0.1, ge=0, lt=1, description="relative height of the bumps")
+    frequency: Num = Field(3.0, gt=0, description="bumps' spatial frequency over the sphere")
+    seed: Int = Field(0, ge=0, description="the noise's random seed")
+    subdivisions: Int = Field(6, ge=1, le=8, description="icosphere subdivisions (20 x 4^n triangles)")
 
 
 class BoxShape(ShapeBase):
@@ -485,9 +527,9 @@ class CylinderShape(ShapeBase):
 
     type: Literal["cylinder"]
     center: Vec3 = Field((0.0, 0.0, 0.0), description="centre of the base, scene units")
-    radius: float = Field(1.0, gt=0, description="scene units")
-    height: float = Field(1.0, gt=0, description="scene units")
-    segments: int = Field(256, ge=8, description="facets around (smooth normals interpolated)")
+    radius: Num = Field(1.0, gt=0, description="scene units")
+    height: Num = Field(1.0, gt=0, description="scene units")
+    segments: Int = Field(256, ge=8, description="facets around (smooth normals interpolated)")
 
 
 class QuadShape(ShapeBase):
@@ -495,7 +537,7 @@ class QuadShape(ShapeBase):
 
     type: Literal["quad"]
     center: Vec3 = Field((0.0, 0.0, 0.0), description="scene units")
-    size: Annotated[tuple[float, float], AfterValidator(_positive_lengths)] = Field(
+    size: Annotated[tuple[Num, Num], AfterValidator(_positive_lengths)] = Field(
         (1.0, 1.0), description="[x, z] side lengths, scene units")
 
 
@@ -509,15 +551,15 @@ class CupShape(ShapeBase):
 
     type: Literal["cup"]
     center: Vec3 = Field((0.0, 0.0, 0.0), description="centre of the base, scene units")
-    radius: float = Field(1.0, gt=0, description="outer radius, scene units")
-    height: float = Field(2.0, gt=0, description="scene units")
-    wall: float = Field(0.1, gt=0, description="wall thickness, scene units")
-    bottom: float = Field(0.2, gt=0, description="bottom thickness, scene units")
-    fill: float = Field(0.0, ge=0, le=1, description="liquid level as a fraction of the inner height")
+    radius: Num = Field(1.0, gt=0, description="outer radius, scene units")
+    height: Num = Field(2.0, gt=0, description="scene units")
+    wall: Num = Field(0.1, gt=0, description="wall thickness, scene units")
+    bottom: Num = Field(0.2, gt=0, description="bottom thickness, scene units")
+    fill: Num = Field(0.0, ge=0, le=1, description="liquid level as a fraction of the inner height")
     liquid: MediumRef | None = Field(None, description="the liquid's medium (as `medium`); needed when fill > 0")
     liquid_eta: Eta | None = Field(None, description="the liquid's refractive index (default: its medium's eta, "
                                    "else 1.33)")
-    segments: int = Field(256, ge=8, description="facets around (smooth normals interpolated)")
+    segments: Int = Field(256, ge=8, description="facets around (smooth normals interpolated)")
 
     @model_validator(mode="after")
     def _dims(self):
@@ -536,7 +578,7 @@ class MeshShape(ShapeBase):
     type: Literal["mesh"]
     file: str = Field(description="the mesh file, relative to the scene file; a closed mesh to hold a medium, its "
                       "normals pointing out")
-    smooth: bool = Field(True, description="interpolate vertex normals (split at creases sharper than 60 degrees)")
+    smooth: Bool = Field(True, description="interpolate vertex normals (split at creases sharper than 60 degrees)")
 
 
 Shape = Annotated[
@@ -579,30 +621,42 @@ def _format_loc(loc: tuple) -> str:
 
 
 def _describe(err: ValidationError) -> tuple[str, str]:
-    """(field, message) for the most relevant error of a ValidationError, pydantic's noise removed.
+    """(field, message) for a ValidationError, pydantic's noise removed: the first error's field, and a message
+    that lists every error (the others as "; field: message"), on one line.
 
-    For a medium given inline (the str | Material union), the Material branch's error is the one the
-    user needs, not "should be a valid string".
+    For a medium given inline (the str | Material union), the Material branch's errors are the ones the user
+    needs, not "should be a valid string".
     """
     errors = err.errors(include_url=False)
-    in_material = [e for e in errors if any("Material" in str(p) for p in e["loc"])]
-    e = in_material[0] if in_material else errors[0]
-    loc = tuple(p for p in e["loc"] if p not in PYDANTIC_UNION_TAGS and "Material" not in str(p))
-    msg = e["msg"].removeprefix("Value error, ")
+    inline = {tuple(e["loc"][:i]) for e in errors for i, p in enumerate(e["loc"]) if "Material" in str(p)}
+    shown, seen = [], set()
+    for e in errors:
+        if any(p == "str" and tuple(e["loc"][:i]) in inline for i, p in enumerate(e["loc"])):
+            continue
+        loc = _format_loc(tuple(p for p in e["loc"] if p not in PYDANTIC_UNION_TAGS and "Material" not in str(p)))
+        msg = _message(e)
+        if (loc, msg) not in seen:
+            seen.add((loc, msg))
+            shown.append((loc, msg))
+    (loc, msg), others = shown[0], shown[1:]
+    return loc, msg + "".join(f"; {o_loc}: {o_msg}" for o_loc, o_msg in others)
+
+
+def _message(e: dict) -> str:
+    """One pydantic error's message in the README's words."""
     if e["type"] == "extra_forbidden":
-        msg = "unknown field"
-    elif e["type"] == "missing":
-        msg = "required field is missing"
-    elif e["type"] == "union_tag_invalid":
-        tags = e.get("ctx", {}).get("expected_tags", "")
-        msg = f"unknown type {e['ctx'].get('tag')!r}; expected one of {tags}"
-    elif e["type"] == "union_tag_not_found":
-        msg = "missing 'type' field"
-    shown = 1 if not in_material else len({tuple(x["loc"]) for x in in_material})
-    more = len({tuple(x["loc"]) for x in errors}) - shown
-    if more > 0 and not in_material:
-        msg += f" (and {more} more error{'s' if more > 1 else ''})"
-    return _format_loc(loc), msg
+        return "unknown field"
+    if e["type"] == "missing":
+        return "required field is missing"
+    if e["type"] == "union_tag_invalid":
+        return f"unknown type {e['ctx'].get('tag')!r}; expected one of {e.get('ctx', {}).get('expected_tags', '')}"
+    if e["type"] == "union_tag_not_found":
+        return "missing 'type' field"
+    if e["type"] == "finite_number":
+        return f"expected a finite number, got {e.get('input')!r}"
+    if e["type"] in ("float_type", "int_type", "bool_type") and isinstance(e.get("input"), bool):
+        return f"expected a {e['type'].removesuffix('_type').replace('float', 'number')}, got {e['input']!r}"
+    return e["msg"].removeprefix("Value error, ")
 
 
 # Tags that Pydantic inserts into error locations for discriminated and plain unions.
@@ -650,7 +704,7 @@ def load_scene(path: Path) -> Scene:
                 raise ConfigError(path, f"shapes[{i}].file", f"mesh file not found: {mesh_path}")
     for name, m in scene.materials.items():
         try:
-            m.coefficients(scene.unit)
+            _finite_coefficients(*m.coefficients(scene.unit))
         except ValueError as e:
             raise ConfigError(path, f"materials.{name}.length_unit", str(e)) from None
     return scene
@@ -691,7 +745,7 @@ def resolve_medium(ref: MediumRef, scene: Scene, scene_path: Path, field: str) -
             raise ConfigError(scene_path, field, f"unknown material {ref!r}; expected one of: {names}")
         mat, label = load_material(p), ref
     try:
-        mat.coefficients(scene.unit)
+        _finite_coefficients(*mat.coefficients(scene.unit))
     except ValueError as e:
         raise ConfigError(scene_path, field, str(e)) from None
     return mat, label

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
+from pbvol_cli.config import MAX_DEPTH, MAX_RESOLUTION, MAX_SEED, MAX_SPP, MAX_THREADS
 from pbvol_cli.errors import PbvolError
 
 app = typer.Typer(
@@ -21,8 +23,9 @@ app = typer.Typer(
 
 # options several commands share
 SceneArg = Annotated[Path, typer.Argument(help="scene file (TOML)")]
-SeedOpt = Annotated[Optional[int], typer.Option(min=0, help="random seed (overrides the scene)")]
-ThreadsOpt = Annotated[Optional[int], typer.Option(min=1, help="worker threads (default: all cores)")]
+SeedOpt = Annotated[Optional[int], typer.Option(min=0, max=MAX_SEED, help="random seed (overrides the scene)")]
+ThreadsOpt = Annotated[Optional[int], typer.Option(min=1, max=MAX_THREADS,
+                                                   help="worker threads (default: all cores)")]
 CacheDirOpt = Annotated[Optional[Path], typer.Option(help="cache directory (else $PBVOL_CACHE_DIR, else "
                                                     "$XDG_CACHE_HOME/pbvol, else ~/.cache/pbvol)")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="no progress bar")]
@@ -39,10 +42,11 @@ def _parse_resolution(text: str | None) -> tuple[int, int] | None:
         return None
     try:
         w, h = (int(x) for x in text.lower().replace(",", "x").split("x"))
-        if w < 1 or h < 1:
+        if not (1 <= w <= MAX_RESOLUTION and 1 <= h <= MAX_RESOLUTION):
             raise ValueError
     except ValueError:
-        raise PbvolError(f"--resolution: expected WIDTHxHEIGHT such as 256x256, got {text!r}") from None
+        raise PbvolError(f"--resolution: expected WIDTHxHEIGHT such as 256x256, each 1 to {MAX_RESOLUTION}, got "
+                         f"{text!r}") from None
     return w, h
 
 
@@ -51,8 +55,8 @@ def render(
     scene: SceneArg,
     output: Annotated[Path, typer.Option("-o", "--output", help="output image (.exr)")],
     method: Annotated[str, typer.Option(help="volpath (the reference path tracer) or pbl (point-based)")] = "volpath",
-    spp: Annotated[Optional[int], typer.Option(min=1, help="samples (volpath) or passes (pbl) per pixel "
-                                                "(overrides the scene)")] = None,
+    spp: Annotated[Optional[int], typer.Option(min=1, max=MAX_SPP, help="samples (volpath) or passes (pbl) per "
+                                                "pixel (overrides the scene)")] = None,
     seed: SeedOpt = None,
     threads: ThreadsOpt = None,
     time_limit: Annotated[Optional[float], typer.Option(min=0.001, help="stop after the pass that crosses this "
@@ -60,7 +64,8 @@ def render(
     resolution: Annotated[Optional[str], typer.Option(help="WIDTHxHEIGHT (overrides the scene)")] = None,
     orders: Annotated[Optional[str], typer.Option(help="volpath: keep only paths with these numbers of volume "
                                                   "scattering events: 0, 1, 2, 3+, or a comma list")] = None,
-    max_depth: Annotated[Optional[int], typer.Option(min=1, help="maximum path depth (overrides the scene)")] = None,
+    max_depth: Annotated[Optional[int], typer.Option(min=1, max=MAX_DEPTH,
+                                                     help="maximum path depth (overrides the scene)")] = None,
     components: Annotated[Optional[str], typer.Option(help="pbl: comma list of single, double, multiple, "
                                                       "bounced")] = None,
     preview: Annotated[Optional[Path], typer.Option(help="also write a tone-mapped sRGB PNG here")] = None,
@@ -150,6 +155,8 @@ def compare(
     from pbvol_cli.pipeline.compare import error_image_png, format_report, image_metrics
 
     try:
+        if fail_above is not None and not math.isfinite(fail_above):
+            raise PbvolError(f"--fail-above: expected a finite number, got {fail_above}")
         a, _ = read_exr(image)
         b, _ = read_exr(reference)
         try:

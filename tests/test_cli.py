@@ -43,6 +43,23 @@ def _with_shape(**fields):
     ({**GOOD, "shapes": [{"type": "mesh", "file": "missing.obj"}]}, ["shapes[0].file", "not found"]),
     ({**GOOD, "camera": {**GOOD["camera"], "fov": 200}}, ["camera.fov", "(0, 180)"]),
     ({**GOOD, "lights": []}, ["at least one light"]),
+    # non-finite and overflowing numbers, negative light, a bool for a number
+    ({**GOOD, "lights": [{"type": "environment", "radiance": float("nan")}]}, ["lights[0].radiance", "finite"]),
+    ({**GOOD, "lights": [{"type": "sphere", "center": [0, 5, 0], "radius": 1e-200, "power": 1e300}]},
+     ["lights[0]", "overflows"]),
+    ({**GOOD, "lights": [{"type": "quad", "corner": [0, 5, 0], "edge1": [1, 0, float("inf")], "edge2": [0, 0, 1],
+                          "radiance": 1.0}]}, ["lights[0].edge1", "finite"]),
+    ({**GOOD, "lights": [{"type": "point", "position": [0, 5, 0], "intensity": -1.0}]},
+     ["lights[0].intensity", "non-negative"]),
+    ({**GOOD, "camera": {**GOOD["camera"], "look_at": [0, float("inf"), 0]}}, ["camera.look_at", "finite"]),
+    ({**GOOD, "camera": {**GOOD["camera"], "fov": True}}, ["camera.fov", "expected a number"]),
+    (_with_shape(radius=float("nan")), ["shapes[0].radius", "finite"]),
+    (_with_shape(transform={"translate": [0, float("nan"), 0]}), ["shapes[0].transform.translate", "finite"]),
+    (_with_shape(medium={"albedo": 0.5, "mean_free_path": 1e-320}), ["shapes[0].medium", "overflow"]),
+    (_with_shape(medium={"albedo": 0.5, "mean_free_path": 1e-300, "scale": 1e300}), ["shapes[0].medium",
+                                                                                     "overflow"]),
+    # every error is listed, on one line
+    ({**_with_shape(radius=-1.0), "camera": {**GOOD["camera"], "fov": 200}}, ["camera.fov", "shapes[0].radius"]),
 ])
 def test_bad_scene_gives_one_line_error_naming_file_and_field(tmp_path, scene, fragments):
     path = write_scene(tmp_path, scene)
@@ -73,6 +90,17 @@ def test_bad_orders_and_resolution(tmp_path):
     _one_line_error(runner.invoke(app, ["render", str(path), "-o", out, "--orders", "7"]), "--orders", "'7'")
     _one_line_error(runner.invoke(app, ["render", str(path), "-o", out, "--resolution", "big"]), "--resolution")
     _one_line_error(runner.invoke(app, ["render", str(path), "-o", str(tmp_path / "x.png")]), ".exr")
+
+
+def test_command_line_numbers_are_bounded_like_the_scene_fields(tmp_path):
+    path = write_scene(tmp_path, GOOD)
+    out = str(tmp_path / "x.exr")
+    _one_line_error(runner.invoke(app, ["render", str(path), "-o", out, "--resolution", "100000x100000"]),
+                    "--resolution", "16384")
+    for option, value in (("--spp", "99999999999999999999"), ("--seed", "-1"), ("--threads", "0")):
+        r = runner.invoke(app, ["render", str(path), "-o", out, option, value])
+        assert r.exit_code != 0 and "Traceback" not in r.output, (option, r.output)
+    assert not (tmp_path / "x.exr").exists()
 
 
 def test_check_summarises_the_scene(tmp_path):
@@ -120,6 +148,8 @@ def test_compare_errors(tmp_path):
     _one_line_error(runner.invoke(app, ["compare", str(tmp_path / "a.exr"), str(tmp_path / "b.exr")]), "4x4", "5x4")
     _one_line_error(runner.invoke(app, ["compare", str(tmp_path / "n.exr"), str(tmp_path / "a.exr")]), "n.exr", "NaN")
     _one_line_error(runner.invoke(app, ["compare", str(tmp_path / "zz.exr"), str(tmp_path / "a.exr")]), "zz.exr")
+    _one_line_error(runner.invoke(app, ["compare", str(tmp_path / "a.exr"), str(tmp_path / "a.exr"), "--fail-above",
+                                        "nan"]), "--fail-above", "finite")
 
 
 def test_render_writes_exr_with_metadata_preview_and_reference_mse(tmp_path):
