@@ -17,3 +17,7 @@ class ConfigError(PbvolError):
         self.message = message
         where = f"{self.file}: {field}: " if field else f"{self.file}: "
         super().__init__(where + message)
+
+
+class RenderFailed(PbvolError):
+    """A render that ran but whose image cannot be trusted (non-finite or absurd pixels): a bug, not bad input."""

@@ -9,16 +9,60 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
+from typer.core import TyperGroup
 
 from pbvol_cli.config import MAX_DEPTH, MAX_RESOLUTION, MAX_SEED, MAX_SPP, MAX_THREADS
-from pbvol_cli.errors import PbvolError
+from pbvol_cli.errors import PbvolError, RenderFailed
+
+# Exit statuses, one convention for every command (README: Errors and exit codes).
+EXIT_OK, EXIT_BAD_INPUT, EXIT_COMPARISON_FAILED, EXIT_RENDER_FAILED, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+
+
+class OneLineErrors(TyperGroup):
+    """The command line's own mistakes (an unknown option, a value out of its bounds) print as one line and exit
+    EXIT_BAD_INPUT, like pbvol's; Ctrl-C says so and exits EXIT_INTERRUPTED."""
+
+    def main(self, *args, standalone_mode: bool = True, **kwargs):
+        if not standalone_mode:
+            return super().main(*args, standalone_mode=False, **kwargs)
+        try:
+            status = super().main(*args, standalone_mode=False, **kwargs)
+        except (KeyboardInterrupt, typer.Abort):
+            status = EXIT_INTERRUPTED
+        except Exception as e:  # click's usage errors (typer vendors click: matched by what they carry)
+            if not (hasattr(e, "format_message") and hasattr(e, "exit_code")):
+                raise
+            if type(e).__name__ == "NoArgsIsHelpError":
+                e.show()
+            else:
+                typer.echo(f"error: {' '.join(e.format_message().split())}", err=True)
+            sys.exit(EXIT_BAD_INPUT)
+        if status == EXIT_INTERRUPTED:
+            typer.echo("error: interrupted", err=True)
+        sys.exit(status if isinstance(status, int) else EXIT_OK)
+
 
 app = typer.Typer(
+    cls=OneLineErrors,
     add_completion=False,
     no_args_is_help=True,
     pretty_exceptions_enable=False,
     help="Render participating media behind refractive boundaries from TOML scene files.",
 )
+
+
+def _print_version(value: bool):
+    if value:
+        from pbvol_cli import __version__
+
+        typer.echo(f"pbvol {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _options(version: Annotated[bool, typer.Option("--version", callback=_print_version, is_eager=True,
+                                                   help="print the version and exit")] = False):
+    """Render participating media behind refractive boundaries from TOML scene files."""
 
 
 # options several commands share
@@ -32,7 +76,7 @@ QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="no progress bar")
 ForceOpt = Annotated[bool, typer.Option("--force", help="rebuild even when the cache holds a matching entry")]
 
 
-def _fail(err: Exception, code: int = 1):
+def _fail(err: Exception, code: int = EXIT_BAD_INPUT):
     typer.echo(f"error: {err}", err=True)
     raise typer.Exit(code)
 
@@ -84,6 +128,8 @@ def render(
                              resolution=_parse_resolution(resolution), orders=orders, max_depth=max_depth,
                              components=components, cache_dir=cache_dir, quiet=quiet)
         summary = render_scene(scene, output, opts, preview=preview, reference=reference, exposure=exposure)
+    except RenderFailed as e:
+        _fail(e, EXIT_RENDER_FAILED)
     except (PbvolError, OSError) as e:
         _fail(e)
     typer.echo(format_summary(summary))
@@ -148,7 +194,7 @@ def compare(
     reference: Annotated[Path, typer.Argument(help="reference image")],
     diff: Annotated[Optional[Path], typer.Option(help="write a false-colour error image (PNG)")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="print the metrics as JSON")] = False,
-    fail_above: Annotated[Optional[float], typer.Option(help="exit with status 1 when the MSE exceeds this")] = None,
+    fail_above: Annotated[Optional[float], typer.Option(help="exit with status 2 when the MSE exceeds this")] = None,
 ):
     """MSE, relative MSE and PSNR of IMAGE against REFERENCE, overall and per channel."""
     from pbvol_cli.imageio import read_exr
@@ -168,11 +214,11 @@ def compare(
         if diff is not None:
             error_image_png(a, b, diff)
     except PbvolError as e:
-        _fail(e, 2)
+        _fail(e)
     typer.echo(json.dumps(m, allow_nan=False) if as_json else format_report(m, str(image), str(reference)))
     if fail_above is not None and m["mse"] > fail_above:
         typer.echo(f"FAIL: MSE {m['mse']:.6g} exceeds {fail_above:g}", err=True)
-        raise typer.Exit(1)
+        raise typer.Exit(EXIT_COMPARISON_FAILED)
 
 
 @app.command()

@@ -98,9 +98,23 @@ def test_command_line_numbers_are_bounded_like_the_scene_fields(tmp_path):
     _one_line_error(runner.invoke(app, ["render", str(path), "-o", out, "--resolution", "100000x100000"]),
                     "--resolution", "16384")
     for option, value in (("--spp", "99999999999999999999"), ("--seed", "-1"), ("--threads", "0")):
-        r = runner.invoke(app, ["render", str(path), "-o", out, option, value])
-        assert r.exit_code != 0 and "Traceback" not in r.output, (option, r.output)
+        _one_line_error(runner.invoke(app, ["render", str(path), "-o", out, option, value]), option)
     assert not (tmp_path / "x.exr").exists()
+
+
+def test_one_exit_status_per_kind_of_outcome(tmp_path):
+    """0 ok, 1 bad input (whether pbvol or the option parser finds it), 2 a comparison failed (README)."""
+    path = write_scene(tmp_path, GOOD)
+    for bad in (["render", str(path), "--no-such-option"], ["render", str(path)], ["check", str(tmp_path / "no")],
+                ["frobnicate"]):
+        r = runner.invoke(app, bad)
+        assert r.exit_code == 1, (bad, r.output)
+        _one_line_error(r)
+    write_exr(tmp_path / "a.exr", np.zeros((2, 2, 3), np.float32))
+    write_exr(tmp_path / "b.exr", np.ones((2, 2, 3), np.float32))
+    assert runner.invoke(app, ["compare", str(tmp_path / "a.exr"), str(tmp_path / "a.exr")]).exit_code == 0
+    assert runner.invoke(app, ["compare", str(tmp_path / "a.exr"), str(tmp_path / "b.exr"), "--fail-above",
+                               "0.5"]).exit_code == 2
 
 
 def test_check_summarises_the_scene(tmp_path):
@@ -134,7 +148,7 @@ def test_compare_known_mse_json_and_gate(tmp_path):
     assert m["per_channel"]["R"]["mse"] == 0.0
     assert (tmp_path / "d.png").exists()
     gate = runner.invoke(app, ["compare", str(tmp_path / "a.exr"), str(tmp_path / "b.exr"), "--fail-above", "0.01"])
-    assert gate.exit_code == 1
+    assert gate.exit_code == 2
     ok = runner.invoke(app, ["compare", str(tmp_path / "a.exr"), str(tmp_path / "b.exr"), "--fail-above", "0.1"])
     assert ok.exit_code == 0
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from pbvol_cli import __version__
 from pbvol_cli import config as C
-from pbvol_cli.errors import PbvolError
+from pbvol_cli.errors import PbvolError, RenderFailed
 from pbvol_cli.physics.lights import LIGHT_RGB
 from pbvol_cli.pipeline.progress import CompileMonitor, peak_memory_mb, progress_bar, set_threads
 
@@ -127,7 +127,7 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
               layers={k: v.astype(np.float32) for k, v in layers.items()} if layers else None)
     problem = implausible_pixels(img, layers, float(built.lights[:, LIGHT_RGB:LIGHT_RGB + 3].max(initial=0.0)))
     if problem:
-        raise PbvolError(f"{out_path}: written, but {problem}: the render failed (please report the scene)")
+        raise RenderFailed(f"{out_path}: written, but {problem}: the render failed (please report the scene)")
     if preview is not None:
         write_preview_png(preview, img, exposure)
     summary = {

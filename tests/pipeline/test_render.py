@@ -27,7 +27,7 @@ def test_implausible_pixels_names_non_finite_and_absurd_values():
     assert implausible_pixels(bad, light_radiance=0.5 * 20) is None
 
 
-def test_a_render_with_non_finite_pixels_exits_non_zero_naming_the_file(tmp_path, monkeypatch):
+def test_a_render_with_non_finite_pixels_exits_3_naming_the_file(tmp_path, monkeypatch):
     import pbvol_cli.render.volpath as volpath
 
     def broken(built, spp, *args, **kwargs):
@@ -39,5 +39,5 @@ def test_a_render_with_non_finite_pixels_exits_non_zero_naming_the_file(tmp_path
     monkeypatch.setattr(volpath, "render_volpath", broken)
     scene = write_scene(tmp_path, {"camera": camera((4, 4)), "lights": [{"type": "environment", "radiance": 1.0}]})
     r = runner.invoke(app, ["render", str(scene), "-o", str(tmp_path / "o.exr"), "-q"])
-    assert r.exit_code == 1, r.output
+    assert r.exit_code == 3, r.output  # EXIT_RENDER_FAILED: not bad input
     assert "o.exr" in r.stderr and "non-finite" in r.stderr and "\n" not in r.stderr.strip()
