@@ -675,8 +675,10 @@ def read_toml(path: Path) -> dict:
             return tomllib.load(f)
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(path, None, f"TOML syntax error: {e}") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise ConfigError(path, None, f"cannot read file: {e}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(path, None, "not a TOML text file (binary content); expected a scene or material file")
+    except OSError as e:
+        raise ConfigError(path, None, f"cannot read file: {e.strerror or e}") from None
 
 
 def load_material(path: Path) -> Material:

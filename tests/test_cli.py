@@ -117,6 +117,30 @@ def test_one_exit_status_per_kind_of_outcome(tmp_path):
                                "0.5"]).exit_code == 2
 
 
+def test_inputs_that_cannot_work_are_refused_before_the_render(tmp_path):
+    # a mesh with a hole cannot hold a medium: rays would leave it without meeting a boundary
+    (tmp_path / "open.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\n")
+    path = write_scene(tmp_path, {**GOOD, "shapes": [{"type": "mesh", "file": "open.obj", "medium": "wax",
+                                                      "interface": "dielectric"}]})
+    _one_line_error(runner.invoke(app, ["check", str(path)]), "shapes[0].file", "not closed")
+    # an image given as a scene
+    write_exr(tmp_path / "img.exr", np.zeros((2, 2, 3), np.float32))
+    _one_line_error(runner.invoke(app, ["check", str(tmp_path / "img.exr")]), "img.exr", "not a TOML text file")
+    # outputs that cannot be written, a reference that is not finite: before any work
+    good = write_scene(tmp_path, GOOD)
+    nan = np.zeros((8, 8, 3), np.float32)
+    nan[1, 1] = np.nan
+    write_exr(tmp_path / "nan.exr", nan)
+    for extra, fragments in ((["-o", str(tmp_path / "no" / "x.exr")], ["no/x.exr", "does not exist"]),
+                             (["-o", str(tmp_path / "x.exr"), "--preview", str(tmp_path / "no" / "p.png")],
+                              ["--preview", "does not exist"]),
+                             (["-o", str(tmp_path)], ["must be an .exr"]),
+                             (["-o", str(tmp_path / "x.exr"), "--reference", str(tmp_path / "nan.exr")],
+                              ["nan.exr", "non-finite"])):
+        _one_line_error(runner.invoke(app, ["render", str(good), "-q", *extra]), *fragments)
+    assert not (tmp_path / "x.exr").exists()
+
+
 def test_check_summarises_the_scene(tmp_path):
     path = write_scene(tmp_path, GOOD)
     r = runner.invoke(app, ["check", str(path)])

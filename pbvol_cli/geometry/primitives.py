@@ -325,6 +325,9 @@ def _mesh(shape, scene_dir: pathlib.Path) -> list[MeshPart]:
         raise ValueError(f"cannot read mesh {path}: all its triangles are degenerate")
     if not np.all(np.isfinite(mesh.vertices)):
         raise ValueError(f"cannot read mesh {path}: non-finite vertex coordinates")
+    if shape.medium is not None and not mesh.is_watertight:
+        # rays would leave the medium through the holes without meeting a boundary: a silently wrong image
+        raise ValueError(f"mesh {path} holds a medium but is not closed (not watertight); expected a closed mesh")
     vertices = np.asarray(mesh.vertices, float)
     faces = np.asarray(mesh.faces, np.int64)
     if mesh.is_watertight and mesh.is_winding_consistent and _signed_volume(vertices, faces) < 0:

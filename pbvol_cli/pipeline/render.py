@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -64,6 +65,18 @@ def implausible_pixels(img: np.ndarray, layers: dict | None = None, light_radian
     return None
 
 
+def writable_file(path: Path, what: str):
+    """Refuse, before any work, a file that cannot be written: its folder missing or read-only, or itself
+    read-only or a folder."""
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise PbvolError(f"{path}: cannot write {what}: the folder {parent} does not exist")
+    if path.is_dir():
+        raise PbvolError(f"{path}: cannot write {what}: it is a folder")
+    if not os.access(parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise PbvolError(f"{path}: cannot write {what}: permission denied")
+
+
 def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview: Path | None = None,
                  reference: Path | None = None, exposure: float = 0.0) -> dict:
     """Render a scene file to an EXR. Returns the summary dict (also printed by the CLI)."""
@@ -75,9 +88,14 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
     out_path = Path(out_path)
     if out_path.suffix.lower() != ".exr":
         raise PbvolError(f"{out_path}: the output must be an .exr file (use --preview for a PNG)")
+    writable_file(out_path, "the output")
+    if preview is not None:
+        writable_file(Path(preview), "--preview")
     ref_img = None
     if reference is not None:
         ref_img, _ = read_exr(reference)
+        if not np.all(np.isfinite(ref_img)):
+            raise PbvolError(f"{reference}: the reference has non-finite pixels; expected a finite image")
     scene = C.load_scene(scene_path)
     rs = scene.render
     spp = opts.spp or rs.spp
