@@ -73,6 +73,7 @@ ThreadsOpt = Annotated[Optional[int], typer.Option(min=1, max=MAX_THREADS,
 CacheDirOpt = Annotated[Optional[Path], typer.Option(help="cache directory (else $PBVOL_CACHE_DIR, else "
                                                     "$XDG_CACHE_HOME/pbvol, else ~/.cache/pbvol)")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="no progress bar")]
+JsonOpt = Annotated[bool, typer.Option("--json", help="print the summary as one line of JSON (for scripts)")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="rebuild even when the cache holds a matching entry")]
 
 
@@ -117,6 +118,7 @@ def render(
     reference: Annotated[Optional[Path], typer.Option(help="print the MSE against this image at the end")] = None,
     cache_dir: CacheDirOpt = None,
     quiet: QuietOpt = False,
+    as_json: JsonOpt = False,
 ):
     """Render SCENE to an EXR image (float32 RGB with metadata)."""
     from pbvol_cli.pipeline.cache import cache_dir as resolve_cache
@@ -132,7 +134,7 @@ def render(
         _fail(e, EXIT_RENDER_FAILED)
     except (PbvolError, OSError) as e:
         _fail(e)
-    typer.echo(format_summary(summary))
+    typer.echo(json.dumps(summary) if as_json else format_summary(summary))
 
 
 @app.command("precompute-lut")
@@ -250,14 +252,14 @@ def _fmt3(v) -> str:
 
 
 @app.command()
-def check(scene: SceneArg):
+def check(scene: SceneArg, as_json: JsonOpt = False):
     """Validate SCENE and summarise it: shapes, triangles, lights, media, mean free paths vs object size."""
     from pbvol_cli import config as C
-    from pbvol_cli.pipeline.check import summarize
+    from pbvol_cli.pipeline.check import describe, summarize
 
     try:
         sc = C.load_scene(scene)
-        typer.echo(summarize(sc, scene))
+        typer.echo(json.dumps(describe(sc, scene)) if as_json else summarize(sc, scene))
     except PbvolError as e:
         _fail(e)
 

@@ -141,6 +141,26 @@ def test_inputs_that_cannot_work_are_refused_before_the_render(tmp_path):
     assert not (tmp_path / "x.exr").exists()
 
 
+def test_json_summaries_for_scripts(tmp_path):
+    path = write_scene(tmp_path, GOOD)
+    c = runner.invoke(app, ["check", str(path), "--json"])
+    assert c.exit_code == 0, c.output
+    d = json.loads(c.stdout)
+    assert d["media"][0]["label"] == "wax" and d["lights"] == ["environment"] and d["resolution"] == [8, 8]
+    r = runner.invoke(app, ["render", str(path), "-o", str(tmp_path / "x.exr"), "-q", "--json"])
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    assert s["method"] == "volpath" and s["spp"] == 2 and s["output"] == str(tmp_path / "x.exr")
+
+
+def test_check_notes_a_medium_thicker_than_the_table(tmp_path):
+    thick = _with_shape(medium={"albedo": 0.99, "mean_free_path": 0.001}, radius=1.0)
+    d = json.loads(runner.invoke(app, ["check", str(write_scene(tmp_path, thick)), "--json"]).stdout)
+    assert d["media"][0]["mean_free_paths_across"][0] > 1000
+    assert any("beyond the multiple-scattering table" in n for n in d["notes"])
+    assert not json.loads(runner.invoke(app, ["check", str(write_scene(tmp_path, GOOD)), "--json"]).stdout)["notes"]
+
+
 def test_check_summarises_the_scene(tmp_path):
     path = write_scene(tmp_path, GOOD)
     r = runner.invoke(app, ["check", str(path)])

@@ -10,38 +10,62 @@ from pbvol_cli import config as C
 from pbvol_cli.geometry.scene_build import MED_SEALED, SPH_SURFACE, sphere_bounds
 
 
-def summarize(scene: C.Scene, path: Path) -> str:
+def describe(scene: C.Scene, path: Path) -> dict:
+    """What the renderer will see, as data (`check --json`): camera, shapes, lights, media with their mean free
+    paths against their object's size, and notes on what may not render as the user expects."""
     from pbvol_cli.geometry.scene_build import build_scene
 
     b = build_scene(scene, path)
-    W, H = scene.camera.resolution
-    lines = [f"{path}: OK", f"  unit: {scene.unit}; camera {W}x{H}, fov {scene.camera.fov:g} deg; "
-             f"render {scene.render.spp} spp, max depth {scene.render.max_depth}, seed {scene.render.seed}"]
-    ntri = int(len(b.faces))
-    lines.append(f"  shapes: {len(scene.shapes)} ({ntri} triangles, {len(b.spheres)} analytic spheres)")
+    out = {"file": str(path), "unit": scene.unit, "resolution": list(scene.camera.resolution),
+           "fov_deg": scene.camera.fov, "spp": scene.render.spp, "max_depth": scene.render.max_depth,
+           "seed": scene.render.seed, "triangles": int(len(b.faces)), "analytic_spheres": int(len(b.spheres)),
+           "scene_diagonal": float(np.linalg.norm(b.bbox[1] - b.bbox[0])), "shapes": [], "lights": [],
+           "media": [], "notes": []}
     for (name, tris), shape in zip(b.shape_triangles, scene.shapes):
-        med = _medium_label(shape.medium) or "-"
-        extra = f", liquid {_medium_label(shape.liquid)}" if getattr(shape, "liquid", None) else ""
-        eta = f", eta {shape.eta:g}" if shape.eta is not None else ""
-        lines.append(f"    {name}: {shape.type}, {shape.interface}{eta}, medium {med}{extra}"
-                     + (f", {tris} triangles" if tris else " (analytic)"))
-    lines.append(f"  lights: {len(scene.lights)}")
-    for L in scene.lights:
-        lines.append(f"    {L.type}")
-    size = float(np.linalg.norm(b.bbox[1] - b.bbox[0]))
-    lines.append(f"  media: {len(b.medium_info)} (scene diagonal {size:.4g} {scene.unit})")
+        out["shapes"].append({"name": name, "type": shape.type, "interface": shape.interface, "eta": shape.eta,
+                              "medium": _medium_label(shape.medium),
+                              "liquid": _medium_label(getattr(shape, "liquid", None)), "triangles": int(tris)})
+    out["lights"] = [L.type for L in scene.lights]
+    extent = scene.render.lut.extent
     for k, mi in enumerate(b.medium_info):
         st = mi.sigma_a + mi.sigma_s
         mfp = np.where(st > 0, 1.0 / np.maximum(st, 1e-300), np.inf)
         alb = np.where(st > 0, mi.sigma_s / np.maximum(st, 1e-300), 0.0)
         obj = _medium_size(b, k)
-        ratio = obj / mfp
-        lines.append(f"    {mi.label}: albedo {_f(alb)}, mean free path {_f(mfp)} {scene.unit}, g {mi.material.g:g}, "
-                     f"phase {mi.material.phase}"
-                     + (", sealed (no light reaches it directly)" if b.media[k, MED_SEALED] else ""))
-        lines.append(f"      object size {obj:.4g} = {_f(ratio)} mean free paths")
+        across = obj / mfp
+        out["media"].append({"label": mi.label, "albedo": alb.tolist(), "mean_free_path": mfp.tolist(),
+                             "g": mi.material.g, "phase": mi.material.phase, "sealed": bool(b.media[k, MED_SEALED]),
+                             "object_size": obj, "mean_free_paths_across": across.tolist()})
+        if np.nanmax(across) > 2.0 * extent:
+            out["notes"].append(f"{mi.label}: {np.nanmax(across):.3g} mean free paths across, beyond the "
+                                f"multiple-scattering table's {2.0 * extent:g} ([render.lut] extent {extent:g}): pbl "
+                                "loses the light that diffuses farther (docs/pbl.md)")
     if not any(L.type in ("sphere", "quad", "environment") for L in scene.lights):
-        lines.append("  note: only delta lights: volpath cannot reach them through a refracting boundary")
+        out["notes"].append("only delta lights: volpath cannot reach them through a refracting boundary (pbl can)")
+    return out
+
+
+def summarize(scene: C.Scene, path: Path) -> str:
+    """describe() as the text `check` prints."""
+    d = describe(scene, path)
+    W, H = d["resolution"]
+    lines = [f"{path}: OK", f"  unit: {d['unit']}; camera {W}x{H}, fov {d['fov_deg']:g} deg; "
+             f"render {d['spp']} spp, max depth {d['max_depth']}, seed {d['seed']}",
+             f"  shapes: {len(d['shapes'])} ({d['triangles']} triangles, {d['analytic_spheres']} analytic spheres)"]
+    for sh in d["shapes"]:
+        extra = f", liquid {sh['liquid']}" if sh["liquid"] else ""
+        eta = f", eta {sh['eta']:g}" if sh["eta"] is not None else ""
+        lines.append(f"    {sh['name']}: {sh['type']}, {sh['interface']}{eta}, medium {sh['medium'] or '-'}{extra}"
+                     + (f", {sh['triangles']} triangles" if sh["triangles"] else " (analytic)"))
+    lines.append(f"  lights: {len(d['lights'])}")
+    lines += [f"    {t}" for t in d["lights"]]
+    lines.append(f"  media: {len(d['media'])} (scene diagonal {d['scene_diagonal']:.4g} {d['unit']})")
+    for m in d["media"]:
+        lines.append(f"    {m['label']}: albedo {_f(m['albedo'])}, mean free path {_f(m['mean_free_path'])} "
+                     f"{d['unit']}, g {m['g']:g}, phase {m['phase']}"
+                     + (", sealed (no light reaches it directly)" if m["sealed"] else ""))
+        lines.append(f"      object size {m['object_size']:.4g} = {_f(m['mean_free_paths_across'])} mean free paths")
+    lines += [f"  note: {n}" for n in d["notes"]]
     return "\n".join(lines)
 
 
