@@ -304,6 +304,15 @@ class PblSettings(Strict):
                               "(wider: less noise from the light samples, more blur)")
     kmax: Int = Field(4, ge=1, description="points per camera-ray segment in a medium for single scattering (eq. 9)")
     kmax_scattered: Int = Field(1, ge=1, description="points per segment for double and multiple (smooth along rays)")
+    cache_cell: Num = Field(0.5, ge=0, description="double, multiple and bounced light are evaluated once per "
+                            "cell and direction bin, at a random camera point of it, and shared by the others (a blur "
+                            "of about a cell): the cells' depth below the boundary, mean free paths of the densest "
+                            "channel; 0: at every point")
+    cache_lateral: Num = Field(0.5, ge=0, description="the cells' width along the boundary, mean free paths (at "
+                               "least cache_cell; wider cells are cut in slices cache_cell deep below the boundary, "
+                               "where the terms change fastest)")
+    cache_directions: Int = Field(8, ge=1, le=64, description="direction bins per cube-map face for cache_cell "
+                                  "(8: about 11 degrees wide)")
     cut_size: Int = Field(8, ge=0, description="octree refinements per point for double and multiple scattering "
                           "(stochastic light cut: more = less noise, more time)")
     clamp: Num = Field(0.02, ge=0, description="smallest radius a source's 1/r^2 is averaged over (double "

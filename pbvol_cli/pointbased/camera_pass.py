@@ -31,6 +31,7 @@ from pbvol_cli.physics.lights import ENVIRONMENT, LIGHT_RGB, LIGHT_TYPE, emitted
 from pbvol_cli.physics.sampling import cosine_hemisphere, rand
 from pbvol_cli.pointbased.gather import (LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_SINGLE, eval_segments, gather_settings,
                                          segment_planes)
+from pbvol_cli.pointbased.radiance_cache import cache_settings
 from pbvol_cli.pointbased.volume_samples import medium_params, scattered_share
 from pbvol_cli.render.camera import camera_rays_for
 from pbvol_cli.render.interfaces import dielectric_fresnel, incident_side, indices, medium_beyond, shadow_ray_length
@@ -364,6 +365,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
     state = np.zeros(n, np.int64)  # see _interact_one
     n_start = np.full((n, 3), np.nan)  # the normal of the surface each ray leaves (NaN: the camera)
     limits = PathLimits(bs.eps, pbl.max_split_depth, pbl.diffuse_bounces)
+    cache, cache_b = cache_settings(pbl), cache_settings(pbl, single=True)  # the bounced light is smooth throughout
     while len(pos):
         t, surf, ng, ns = closest_surface_hits(caster, bs, pos, dirs)
         tl, li = np.empty(len(pos)), np.empty(len(pos), np.int64)
@@ -386,14 +388,14 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                 beta_ev = beta.copy()
                 beta_ev[ev] /= (q[keep] / kpaths[ev])[:, None]
                 eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, med, lit.kernel, settings, contrib,
-                              state >> 2, planes)
+                              state >> 2, planes, cache, roulette_rng)
                 if bounced is not None and bounced.count:
                     qb = min(1.0, scattered_share(lit, bounced) / BOUNCED_ROULETTE)
                     evb = ev[roulette_rng.random(len(ev)) < qb]
                     beta_b = beta_ev / qb
                     cb3 = np.zeros((len(pos), 3, 3))
                     eval_segments(pool, threads, evb, pos, dirs, beta_b, tev, rng, med, bounced.kernel, settings_b,
-                                  cb3, state >> 2, planes)
+                                  cb3, state >> 2, planes, cache_b, roulette_rng)
                     contrib[:, LAYER_BOUNCED] += cb3.sum(axis=1)
             beta[sub] *= np.exp(-sum(bs.medium_sigmas(m))[None, :] * tev[sub, None])
         for c, name in zip((LAYER_SINGLE, LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_BOUNCED), COMPONENTS):

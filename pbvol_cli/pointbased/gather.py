@@ -17,6 +17,7 @@ from numba import njit
 
 from pbvol_cli.physics.sampling import depth_of_fraction, rand
 from pbvol_cli.pointbased.light_cut import double_multiple
+from pbvol_cli.pointbased.radiance_cache import CacheSettings, shared_terms
 from pbvol_cli.pointbased.single_scattering import single_scattering
 from pbvol_cli.pointbased.volume_samples import ENTRY_N, ENTRY_Q, EXIT_N, EXIT_Q, PLANE_COLS, Query
 
@@ -96,11 +97,28 @@ def _eval_segments(idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diff
         _segment(idx[k], pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes)
 
 
-def eval_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes):
+def eval_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes,
+                  cache: CacheSettings | None = None, bin_rng=None):
     """_segment for the rays idx: med (Medium), vs (VolumeSamples), settings (GatherSettings), out (n, 3, 3).
+    With cache (CacheSettings, cell > 0) and bin_rng, the smooth terms of the rays that did not bounce off a diffuse
+    surface are shared among the points of a bin (radiance_cache.shared_terms) instead.
 
     Numba's parallel loops reject the nested tuples (the octree, the tables): threads over slices instead, the
     kernel releasing the GIL. Rays are independent, so the result does not depend on the split."""
+    if cache is None or not cache.cell > 0.0 or not (settings.double or settings.multiple or cache.single):
+        _on_threads(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes)
+        return
+    after_diffuse = diffuse[idx] > 0  # every term at kmax_diffuse random points, as before
+    _on_threads(pool, threads, idx[after_diffuse], pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse,
+                planes)
+    direct = idx[~after_diffuse]
+    if settings.single and not cache.single:
+        _on_threads(pool, threads, direct, pos, dirs, beta, tseg, rng, med, vs,
+                    settings._replace(double=False, multiple=False), out, diffuse, planes)
+    shared_terms(pool, threads, direct, pos, dirs, beta, tseg, rng, med, vs, settings, cache, out, planes, bin_rng)
+
+
+def _on_threads(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes):
     if threads <= 1 or len(idx) < 64:
         _eval_segments(idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes)
         return

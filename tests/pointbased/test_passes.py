@@ -55,22 +55,25 @@ def test_pbl_is_reproducible_and_each_pass_draws_new_light_samples(tmp_path):
 def test_index_matched_furnace(tmp_path):
     """A non-absorbing sphere (g = 0, 2 mean free paths across its radius) in an index-matched boundary under a
     white sky renders the sky: pbl's layers together must give 1. Without the multiple term's image source the
-    table's infinite medium gave 2.02 (light that has left counted). The estimate is heavy-tailed: at 4 spp the
-    centre read 0.87-0.99 over seeds 1-8 (mean 0.935), at 16 spp 0.943-0.973 over seeds 1-4 (mean 0.961), so 16.
-    One camera path per pass (surface_paths = 1): in a furnace a path's in-scattering and the sky it transmits
-    are anti-correlated along the same chord, and the sum is what is tested (with 8 paths sharing one medium
-    evaluation the spread doubles: 0.915-0.974)."""
+    table's infinite medium gave 2.02 (light that has left counted). The estimate is heavy-tailed: one camera path
+    per pass (surface_paths = 1), since in a furnace a path's in-scattering and the sky it transmits are
+    anti-correlated along the same chord and the sum is what is tested (with 8 paths sharing one medium evaluation
+    the spread doubles). Sharing the smooth terms among points (radiance_cache.py) breaks that correlation too: at
+    16 spp the centre reads 0.95-1.05 over seeds 0 and 7-11 (mean 0.990; per point 0.972-1.013, mean 0.993), so
+    the mean of three seeds."""
     shape = {"type": "sphere", "radius": 1.0, "interface": "null",
              "medium": {"albedo": 1.0, "mean_free_path": 0.5, "g": 0.0}}
     scene = {"camera": camera((12, 12), position=(0, 0, 3.0), fov=30),
              "render": {"spp": 16, "pbl": {"surface_paths": 1}},
              "lights": [{"type": "environment", "radiance": 1.0}], "shapes": [shape]}
     path = write_scene(tmp_path, scene)
-    render_scene(path, tmp_path / "o.exr", RenderOptions(method="pbl", cache_dir=tmp_path, quiet=True))
-    img = read_exr(tmp_path / "o.exr")[0]
-    centre = img[4:8, 4:8].mean()
-    print("index-matched furnace, centre:", centre)
-    assert abs(centre - 1.0) < 0.05, centre
+    centres = []
+    for seed in range(3):
+        render_scene(path, tmp_path / "o.exr", RenderOptions(method="pbl", seed=seed, cache_dir=tmp_path,
+                                                             quiet=True))
+        centres.append(read_exr(tmp_path / "o.exr")[0][4:8, 4:8].mean())
+    print("index-matched furnace, centre:", centres)
+    assert abs(np.mean(centres) - 1.0) < 0.05, centres
 
 
 def test_thick_isotropic_furnace_behind_a_dielectric_boundary(tmp_path):

@@ -1,0 +1,197 @@
+"""The smooth terms evaluated once per cell and direction bin and shared by the camera points in them.
+
+Double and multiple scattering (and the bounced light) vary over a mean free path and more, while a pass asks for
+them at tens of thousands of camera points a fraction of that apart. The points of one batch are binned by
+position (cubes of `cell` mean free paths of the medium's densest channel) and by direction (a cube map of
+`directions` x `directions` bins per face); each occupied bin is evaluated once, at one of its points drawn in
+proportion to its weight, and that radiance serves every point of the bin, each with its own weight (path
+throughput, transmittance, pdf): the bin's total is unbiased. The grid is shifted and the cube map turned at random
+in every batch, so that over passes the bins' edges average out: the image converges to the terms blurred over
+about a cell, not to a blocky one.
+
+Why this pays: a point's estimate of these terms is already noisy (the light cut is stochastic), and a pixel that
+borrows its neighbour's estimate has the same noise as with its own; the work falls by the points per bin.
+tests/pointbased/test_radiance_cache.py measures the blur against the per-point evaluation.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import namedtuple
+
+import numpy as np
+from numba import njit
+
+from pbvol_cli.physics.sampling import depth_of_fraction, rand
+from pbvol_cli.pointbased.light_cut import double_multiple
+from pbvol_cli.pointbased.single_scattering import single_scattering
+from pbvol_cli.pointbased.volume_samples import ENTRY_N, ENTRY_Q, EXIT_N, EXIT_Q, Query
+
+CacheSettings = namedtuple("CacheSettings", ["cell", "lateral", "directions", "single"])
+CacheSettings.__doc__ = """Sharing of the smooth terms: bins `cell` mean free paths (the medium's densest channel; 0:
+every point evaluates its own) deep below the boundary and `lateral` mean free paths wide, `directions` bins per
+cube-map face, and whether single scattering is shared too (the bounced light's: smooth; the lights' own single
+scattering never is)."""
+
+
+
+def cache_settings(pbl, single: bool = False) -> CacheSettings:
+    """The sharing of a scene's [render.pbl] (config.PblSettings); single: for the bounced light."""
+    return CacheSettings(float(pbl.cache_cell), float(max(pbl.cache_lateral, pbl.cache_cell)),
+                         int(pbl.cache_directions), single)
+
+
+ScatteredPoints = namedtuple("ScatteredPoints", ["pos", "dir", "weight", "plane", "owner"])
+ScatteredPoints.__doc__ = """Points where segments take their smooth terms: position (m, 3), propagation direction
+toward the camera (m, 3), weight per channel (m, 3: throughput x transmittance / (pdf x points per segment)), the
+boundary plane (m, 4) and the segment (m,) each belongs to."""
+
+
+@njit(cache=True)
+def _scattered_points(idx, pos, dirs, beta, tseg, rng, med, k2, planes, out):
+    """k2 points per segment idx[j] at stratified depths (as gather._segment's), into out (ScatteredPoints)."""
+    sig_a, sig_s = med.sigma_a, med.sigma_s
+    s = min(sig_a[0] + sig_s[0], min(sig_a[1] + sig_s[1], sig_a[2] + sig_s[2]))
+    m = 0
+    for j in range(idx.shape[0]):
+        i = idx[j]
+        dmax = tseg[i]
+        frac = -math.expm1(-s * dmax) if s > 0.0 else 1.0
+        xi = rand(rng, i)
+        for k in range(k2):
+            u = (k + xi) / k2 * frac
+            if s > 0.0:
+                d = depth_of_fraction(u, s)
+                pdf = s * math.exp(-s * d) / frac
+            else:
+                d = u * dmax
+                pdf = 1.0 / dmax
+            px, py, pz = pos[i, 0] + d * dirs[i, 0], pos[i, 1] + d * dirs[i, 1], pos[i, 2] + d * dirs[i, 2]
+            out.pos[m, 0], out.pos[m, 1], out.pos[m, 2] = px, py, pz
+            for c in range(3):
+                out.dir[m, c] = -dirs[i, c]
+                out.weight[m, c] = beta[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * d) / (pdf * k2)
+            # the point's boundary plane: the nearer of the segment's start and end planes
+            e = EXIT_N if (planes[i, EXIT_Q] - (planes[i, EXIT_N] * px + planes[i, EXIT_N + 1] * py
+                                                + planes[i, EXIT_N + 2] * pz)
+                           < planes[i, ENTRY_Q] - (planes[i, ENTRY_N] * px + planes[i, ENTRY_N + 1] * py
+                                                   + planes[i, ENTRY_N + 2] * pz)) else ENTRY_N
+            for c in range(4):
+                out.plane[m, c] = planes[i, e + c]
+            out.owner[m] = i
+            m += 1
+
+
+@njit(nogil=True, cache=True)
+def _evaluate(reps, pts, rng, med, vs, settings, do_single, values):
+    """The terms at the points reps (indices into pts: ScatteredPoints) into values (len(reps), 3 layers, 3)."""
+    o = np.zeros(3)
+    o3 = np.zeros(3)
+    pplane = np.empty(4)
+    for j in range(reps.shape[0]):
+        r = reps[j]
+        for c in range(4):
+            pplane[c] = pts.plane[r, c]
+        q = Query(pts.pos[r, 0], pts.pos[r, 1], pts.pos[r, 2], pts.dir[r, 0], pts.dir[r, 1], pts.dir[r, 2], pplane)
+        if do_single:
+            o[:] = 0.0
+            single_scattering(vs, med, q, o)
+            for c in range(3):
+                values[j, 0, c] = o[c]
+        if settings.double or settings.multiple:
+            o[:] = 0.0
+            o3[:] = 0.0
+            double_multiple(vs, med, q, settings.cut_size, settings.clamp, settings.double, settings.multiple, o, o3,
+                            rng, pts.owner[r])
+            for c in range(3):
+                values[j, 1, c] = o[c]
+                values[j, 2, c] = o3[c]
+
+
+def bin_keys(pos: np.ndarray, dirs: np.ndarray, depth: np.ndarray, lateral: float, cell: float, directions: int,
+             rng) -> np.ndarray:
+    """(m, 5) integer keys of the bins of points pos (m, 3) with directions dirs (m, 3, unit) at depths depth (m,)
+    below their boundary plane (inf: none): cubes of side `lateral` on a grid shifted by a random offset, cut in
+    slices `cell` thick by depth where lateral > cell (the terms fall fastest away from the boundary), and the
+    cube-map bin (directions^2 per face) of the direction turned by a random rotation. Lengths in scene units."""
+    ijk = np.floor((pos + rng.random(3) * lateral) / lateral).astype(np.int64)
+    slab = np.zeros(len(pos), np.int64)
+    if lateral > cell:
+        slab = np.floor(np.minimum(depth, 1e9 * cell) / cell + rng.random()).astype(np.int64)
+    rot, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    d = dirs @ rot.T
+    axis = np.abs(d).argmax(axis=1)
+    rows = np.arange(len(d))
+    major = d[rows, axis]
+    u = d[rows, (axis + 1) % 3] / np.abs(major)
+    v = d[rows, (axis + 2) % 3] / np.abs(major)
+    iu = np.minimum(((u + 1.0) * 0.5 * directions).astype(np.int64), directions - 1)
+    iv = np.minimum(((v + 1.0) * 0.5 * directions).astype(np.int64), directions - 1)
+    face = 2 * axis + (major > 0)
+    return np.column_stack([ijk, slab, (face * directions + iu) * directions + iv])
+
+
+def representatives(group: np.ndarray, weight: np.ndarray, rng) -> np.ndarray:
+    """For each bin 0..max(group), one of its points drawn with probability proportional to its weight (one number
+    per point: shared_terms passes the channels' sum): the bin's total, sum of weight_i x L(representative), is
+    then an unbiased estimate of sum of weight_i x L(x_i) (a uniform draw would be biased where the weights and the
+    light vary together across a bin, as the boundary's Fresnel transmission and the light do across a sphere, or
+    the channels' transmittance and the light with the depth). A bin of zero weight takes its first point."""
+    order = np.argsort(group, kind="stable")
+    g = group[order]
+    w = np.maximum(weight[order], 0.0)
+    start = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
+    end = np.r_[start[1:], len(g)]
+    cw = np.cumsum(w)
+    before = np.r_[0.0, cw][start]
+    total = cw[end - 1] - before
+    pick = np.searchsorted(cw, before + rng.random(len(start)) * total, side="right")
+    pick = np.where(total > 0, np.clip(pick, start, end - 1), start)
+    return order[pick]
+
+
+def shared_terms(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, cache: CacheSettings, out,
+                 planes, bin_rng):
+    """The smooth terms of segments idx (as gather.eval_segments would add them) into out (n, 3 layers, 3),
+    evaluated once per bin (bin_keys) at a random point of it. settings: GatherSettings (its double and multiple
+    flags and kmax_scattered); cache.single: single scattering shared too. bin_rng (numpy Generator): the grid's
+    shift and turn and the points chosen. Returns the number of evaluations."""
+    k2 = settings.kmax_scattered
+    m = len(idx) * k2
+    if m == 0:
+        return 0
+    pts = ScatteredPoints(np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 4)),
+                          np.empty(m, np.int64))
+    _scattered_points(idx, pos, dirs, beta, tseg, rng, med, k2, planes, pts)
+    mfp = 1.0 / float(np.max(med.sigma_a + med.sigma_s))
+    depth = pts.plane[:, 3] - np.einsum("ij,ij->i", pts.plane[:, :3], pts.pos)
+    keys = bin_keys(pts.pos, pts.dir, depth, cache.lateral * mfp, cache.cell * mfp, cache.directions, bin_rng)
+    _, group = np.unique(keys, axis=0, return_inverse=True)
+    reps = representatives(group.ravel(), pts.weight.sum(axis=1), bin_rng)
+    group = group.ravel()
+    values = np.zeros((len(reps), 3, 3))
+    do_single = bool(cache.single and settings.single)
+    if threads <= 1 or len(reps) < 64:
+        _evaluate(reps, pts, rng, med, vs, settings, do_single, values)
+    else:
+        # a segment's random state is used by one thread only: points split by their segment
+        parts = [np.flatnonzero(pts.owner[reps] % threads == t) for t in range(threads)]
+        vals = [np.zeros((len(p), 3, 3)) for p in parts]
+        list(pool.map(lambda t: _evaluate(reps[parts[t]], pts, rng, med, vs, settings, do_single, vals[t]),
+                      range(threads)))
+        for p, v in zip(parts, vals):
+            values[p] = v
+    # the draw follows the weights' channel sum; per channel c the bin's total stays unbiased when it is scaled by
+    # (w_rc / w_r) / (W_c / W): the representative's share of channel c over the bin's
+    w_bin = np.stack([np.bincount(group, weights=pts.weight[:, c], minlength=len(reps)) for c in range(3)], axis=1)
+    w_rep = pts.weight[reps]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = (w_rep / w_rep.sum(axis=1, keepdims=True)) / (w_bin / w_bin.sum(axis=1, keepdims=True))
+    scale = np.where(np.isfinite(scale), scale, 1.0)
+    contrib = values[group] * (pts.weight * scale[group])[:, None, :]
+    if not do_single:
+        contrib[:, 0] = 0.0
+    for layer in range(3):
+        for c in range(3):
+            out[:, layer, c] += np.bincount(pts.owner, weights=contrib[:, layer, c], minlength=len(out))
+    return len(reps)
