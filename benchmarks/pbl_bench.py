@@ -42,7 +42,9 @@ from pbvol_cli.pipeline.render import RenderOptions, render_scene
 scene, out, method, spp, seed, threads, res, cache = sys.argv[1:9]
 res = tuple(int(v) for v in res.split("x"))
 kw = dict(method=method, threads=int(threads), cache_dir=Path(cache), quiet=True)
-render_scene(Path(scene), Path(out), RenderOptions(spp=1, resolution=(8, 8), **kw))  # warm numba's cache
+warm = Path(out).with_name(Path(out).stem + ".warm-up.exr")  # not the output: a killed run leaves no wrong file
+render_scene(Path(scene), warm, RenderOptions(spp=1, resolution=(8, 8), **kw))  # warm numba's cache
+warm.unlink()
 s = render_scene(Path(scene), Path(out), RenderOptions(spp=int(spp), seed=int(seed), resolution=res, **kw))
 print(json.dumps(s))
 """

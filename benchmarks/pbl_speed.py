@@ -1,0 +1,135 @@
+#!/usr/bin/env python3
+"""The point-based method's speed against the path tracer: a pass's cost, and error against time.
+
+    .venv/bin/python benchmarks/pbl_speed.py [--scenes oil_sphere,wax_sphere,wine_glass] [--resolution 256]
+        [--pbl-spp 1,2,4,8] [--volpath-spp 16,64,256,1024] [--ref-spp 16384] [--target 1e-3] [--memory-check]
+        [--out bench-out] [--threads 2] [--cache DIR]
+
+For each scene, every render in its own process (each warms numba's cache at 8x8 first, so that compiling is not
+timed; peak memory is per process):
+  1. a volpath reference of --ref-spp samples as two halves (cached, like benchmarks/pbl_bench.py; a quarter of the
+     halves' relMSE estimates the reference's own noise, subtracted from every error below);
+  2. pass cost: pbl at 1 spp against volpath at 16 spp, the ratio of their times (warm, same run);
+  3. error against time: pbl at each --pbl-spp, volpath at each --volpath-spp: (seconds, relMSE) per render, and
+     the time each method needs to reach --target (log-log interpolation between renders; volpath beyond its last
+     render extrapolated as relMSE ~ 1/spp, pbl not extrapolated: it is biased);
+  4. with --memory-check, pbl's peak memory at 512 x 512, 1 spp.
+Writes <out>/pbl_speed.md (the table), <out>/pbl_speed.json and, where matplotlib is installed
+(`pip install matplotlib`), <out>/pbl_speed_<scene>.png, the error-against-time curves.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from pbl_bench import RENDER, ROOT, _run, reference, rel_mse  # noqa: E402
+
+
+def time_to(points: list[tuple[float, float]], target: float, extrapolate: bool) -> float | None:
+    """Seconds to reach relMSE `target` from (seconds, relMSE) points, by log-log interpolation; beyond the last
+    point, relMSE ~ 1 / time where extrapolate (an unbiased method), else None."""
+    pts = sorted(p for p in points if p[1] > 0)
+    for (t0, e0), (t1, e1) in zip(pts, pts[1:]):
+        if e0 >= target >= e1:
+            a = math.log(e0 / target) / math.log(e0 / e1) if e0 != e1 else 0.0
+            return math.exp(math.log(t0) + a * math.log(t1 / t0))
+    if pts and pts[0][1] <= target:
+        return pts[0][0]
+    if extrapolate and pts:
+        t, e = pts[-1]
+        return t * e / target
+    return None
+
+
+def render(scene: Path, method: str, spp: int, seed: int, res: str, threads: int, cache: Path, out: Path):
+    from pbvol_cli.imageio import read_exr
+
+    s = _run(RENDER, scene, out, method, spp, seed, threads, res, cache)
+    return s, read_exr(out)[0].astype(float)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scenes", default="oil_sphere,wax_sphere,wine_glass")
+    ap.add_argument("--resolution", type=int, default=256)
+    ap.add_argument("--pbl-spp", default="1,2,4,8")
+    ap.add_argument("--volpath-spp", default="16,64,256,1024")
+    ap.add_argument("--ref-spp", type=int, default=16384)
+    ap.add_argument("--target", type=float, default=1e-3)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
+    ap.add_argument("--out", type=Path, default=ROOT / "bench-out")
+    ap.add_argument("--memory-check", action="store_true")
+    args = ap.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    res = f"{args.resolution}x{args.resolution}"
+    rows = []
+    for name in args.scenes.split(","):
+        scene = ROOT / "configs" / f"{name}.toml"
+        ref, ref_noise = reference(scene, res, args.ref_spp, args.threads, args.cache)
+        curves = {}
+        for method, spps in (("pbl", args.pbl_spp), ("volpath", args.volpath_spp)):
+            pts = []
+            for spp in (int(v) for v in spps.split(",")):
+                s, img = render(scene, method, spp, 1, res, args.threads, args.cache, args.out / f"{name}_{method}.exr")
+                pts.append((s["time_s"], max(rel_mse(img, ref) - ref_noise, 1e-12), spp, s["peak_memory_mb"]))
+                print(f"{name} {method} {spp} spp: {s['time_s']:.2f} s, relMSE {pts[-1][1]:.5f}", flush=True)
+            curves[method] = pts
+        t_pass = next(p[0] for p in curves["pbl"] if p[2] == 1) if any(p[2] == 1 for p in curves["pbl"]) else None
+        t_vp16 = next((p[0] for p in curves["volpath"] if p[2] == 16), None)
+        tp = time_to([p[:2] for p in curves["pbl"]], args.target, extrapolate=False)
+        tv = time_to([p[:2] for p in curves["volpath"]], args.target, extrapolate=True)
+        row = {"scene": name, "resolution": res, "reference_noise": ref_noise, "curves": curves,
+               "pass_s": t_pass, "volpath16_s": t_vp16,
+               "pass_over_volpath16": t_pass / t_vp16 if t_pass and t_vp16 else None,
+               "pbl_to_target_s": tp, "volpath_to_target_s": tv,
+               "speed_up_at_target": tv / tp if tp and tv else None}
+        if args.memory_check:
+            s, _ = render(scene, "pbl", 1, 1, "512x512", args.threads, args.cache, args.out / f"{name}_512.exr")
+            row["pbl_512_peak_mb"] = s["peak_memory_mb"]
+        rows.append(row)
+        _plot(args.out / f"pbl_speed_{name}.png", name, curves, args.target)
+    (args.out / "pbl_speed.json").write_text(json.dumps(rows, indent=1))
+    lines = [f"| scene | pass s | volpath 16 spp s | pass / volpath 16 | pbl s to {args.target:g} | "
+             f"volpath s to {args.target:g} | speed-up | pbl 512² MiB |", "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        def f(v, fmt="{:.2f}"):
+            return fmt.format(v) if v is not None else "—"
+        lines.append(f"| {r['scene']} | {f(r['pass_s'])} | {f(r['volpath16_s'])} "
+                     f"| {f(r['pass_over_volpath16'], '{:.1f}×')} | {f(r['pbl_to_target_s'], '{:.1f}')} "
+                     f"| {f(r['volpath_to_target_s'], '{:.1f}')} "
+                     f"| {f(r['speed_up_at_target'], '{:.1f}×')} | {f(r.get('pbl_512_peak_mb'), '{:.0f}')} |")
+    table = "\n".join(lines)
+    (args.out / "pbl_speed.md").write_text(table + "\n")
+    print(table)
+
+
+def _plot(path: Path, name: str, curves: dict, target: float):
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print(f"(no matplotlib: {path.name} not drawn)")
+        return
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    for method, pts in curves.items():
+        ax.loglog([p[0] for p in pts], [p[1] for p in pts], "o-", label=method)
+    ax.axhline(target, color="grey", lw=0.8, ls="--")
+    ax.set_xlabel("seconds")
+    ax.set_ylabel("relMSE")
+    ax.set_title(name)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()
