@@ -167,6 +167,7 @@ def place_samples(
     threads: ThreadsOpt = None,
     force: ForceOpt = False,
     cache_dir: CacheDirOpt = None,
+    quiet: QuietOpt = False,
 ):
     """Place the light surface and volume samples of the point-based method and cache them."""
     from pbvol_cli import config as C
@@ -179,7 +180,7 @@ def place_samples(
         n = set_threads(threads)
         sc = C.load_scene(scene)
         built = build_scene(sc, scene)
-        prog, update = progress_bar(False, "place-samples", "steps")
+        prog, update = progress_bar(quiet, "place-samples", "steps")
         with prog:
             r = get_light_samples(built, sc.render.pbl, sc.render.seed if seed is None else seed,
                                   resolve_cache(cache_dir), n, force, update)

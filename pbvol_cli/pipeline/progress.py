@@ -1,4 +1,5 @@
-"""What every stage shows and measures while it runs: a progress bar, the worker threads, peak memory."""
+"""What every stage shows and measures while it runs: progress (a bar, or plain lines in a log), the worker
+threads, peak memory, compile time."""
 
 from __future__ import annotations
 
@@ -8,8 +9,16 @@ import threading
 import time
 
 
-def progress_bar(quiet: bool, label: str, unit: str = "paths"):
-    """A rich progress bar on stderr with elapsed time and ETA. Returns (context manager, update(done, total))."""
+PLAIN_INTERVAL_S = 10.0  # seconds between the plain progress lines of a non-terminal stderr (a CI log)
+
+
+def progress_bar(quiet: bool, label: str, unit: str = "paths", stream=None):
+    """Progress on stderr (or stream): a rich bar with elapsed time and ETA on a terminal; elsewhere (a CI log) a
+    plain line every PLAIN_INTERVAL_S seconds and one at the end. Returns (context manager, update(done, total))."""
+    stream = sys.stderr if stream is None else stream
+    if quiet or not stream.isatty():
+        plain = PlainProgress(label, unit, stream, quiet)
+        return plain, plain.update
     from rich.console import Console
     from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
                                TimeRemainingColumn)
@@ -17,7 +26,7 @@ def progress_bar(quiet: bool, label: str, unit: str = "paths"):
     prog = Progress(
         TextColumn(label), BarColumn(), MofNCompleteColumn(), TextColumn(unit),
         TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
-        console=Console(stderr=True), disable=quiet, transient=False,
+        console=Console(file=stream), transient=False,
     )
     task = prog.add_task(label, total=None)
 
@@ -25,6 +34,43 @@ def progress_bar(quiet: bool, label: str, unit: str = "paths"):
         prog.update(task, completed=done, total=total)
 
     return prog, update
+
+
+class PlainProgress:
+    """Progress as plain lines ("label: done/total unit (p %), t s elapsed"), at most one per interval and one at
+    the end: readable in a log file, where a live bar is noise."""
+
+    def __init__(self, label: str, unit: str, stream, quiet: bool = False, interval: float = PLAIN_INTERVAL_S,
+                 clock=time.monotonic):
+        self.label, self.unit, self.stream, self.quiet = label, unit, stream, quiet
+        self.interval, self.clock = interval, clock
+        self.done, self.total = 0, None
+        self.printed = None  # the (done, total) of the last line
+        self.start = self.last = clock()
+
+    def __enter__(self):
+        self.start = self.last = self.clock()
+        return self
+
+    def update(self, done, total):
+        self.done, self.total = done, total
+        if self.clock() - self.last >= self.interval:
+            self._line()
+
+    def _line(self):
+        self.last = self.clock()
+        if self.quiet or self.printed == (self.done, self.total):
+            return
+        self.printed = (self.done, self.total)
+        share = f" ({100.0 * self.done / self.total:.0f} %)" if self.total else ""
+        of = f"/{self.total}" if self.total is not None else ""
+        print(f"{self.label}: {self.done}{of} {self.unit}{share}, {self.last - self.start:.0f} s elapsed",
+              file=self.stream, flush=True)
+
+    def __exit__(self, *exc):
+        if exc[0] is None:
+            self._line()
+        return False
 
 
 def set_threads(threads: int | None) -> int:
