@@ -2,14 +2,20 @@
 
 Location: --cache-dir, else $PBVOL_CACHE_DIR, else $XDG_CACHE_HOME/pbvol (default ~/.cache/pbvol).
 Entries are written to a temporary file in the same directory and moved into place with os.replace, so a
-reader never sees half a file; an entry that fails to load is treated as missing and rebuilt.
+reader never sees half a file. Each entry carries its own file name (which holds its key) and a checksum of its
+arrays: an entry that fails to load, was renamed, was altered or holds NaN is rebuilt, with a line on stderr saying
+so. Builders of one entry take a lock, so that two processes build it once; temporary files that a killed run left
+behind are removed.
 """
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
 import os
+import sys
+import time
 import uuid
 from pathlib import Path
 
@@ -34,12 +40,28 @@ def key_of(**parts) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 
+KEY_FIELD, CHECKSUM_FIELD = "entry_key", "entry_checksum"  # stored beside an entry's arrays
+STALE_TEMP_S = 3600.0  # a temporary file this old was left by a killed run (a live writer's is seconds old)
+
+
+def checksum(arrays: dict) -> str:
+    """SHA-256 of the arrays' names, dtypes, shapes and bytes, in name order."""
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}:{a.dtype.str}:{a.shape}".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
 def save_npz_atomic(path: Path, **arrays) -> None:
+    """Store arrays at path (atomically), with the file's name and the arrays' checksum."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.{uuid.uuid4().hex[:8]}.tmp.npz")
     try:
-        np.savez_compressed(tmp, **arrays)
+        stamp = {KEY_FIELD: np.array(path.name), CHECKSUM_FIELD: np.array(checksum(arrays))}
+        np.savez_compressed(tmp, **arrays, **stamp)
         os.replace(tmp, path)
     finally:
         if tmp.exists():
@@ -48,30 +70,66 @@ def save_npz_atomic(path: Path, **arrays) -> None:
 
 def cached_entry(path: Path, required: tuple[str, ...], from_arrays, build, force: bool = False):
     """(entry, reused): the entry at path rebuilt from its arrays by from_arrays, or, when it is missing, damaged
-    (from_arrays raises ValueError, KeyError or TypeError) or force is set, build()'s, whose .arrays() are then
-    stored atomically."""
-    if not force:
-        data = load_npz(path, required)
-        if data is not None:
-            try:
-                return from_arrays(data), True
-            except (ValueError, KeyError, TypeError):
-                pass  # damaged: rebuilt below
-    entry = build()
-    save_npz_atomic(path, **entry.arrays())
-    return entry, False
+    (load_npz's reasons, or from_arrays raises ValueError, KeyError or TypeError) or force is set, build()'s, whose
+    .arrays() are then stored atomically. A process that finds another building the entry waits for it and takes
+    its result."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_temporaries(path.parent)
+    with open(path.with_name(f".{path.name}.lock"), "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, also when the process is killed
+        if not force:
+            data, problem = _load(path, required)
+            if data is not None:
+                try:
+                    return from_arrays(data), True
+                except (ValueError, KeyError, TypeError) as e:
+                    problem = f"unusable ({e})"
+            if problem:
+                print(f"cache: {path}: {problem}; rebuilding it", file=sys.stderr)
+        entry = build()
+        save_npz_atomic(path, **entry.arrays())
+        return entry, False
+
+
+def remove_stale_temporaries(folder: Path, age_s: float = STALE_TEMP_S) -> int:
+    """Removes the temporary files (.*.tmp.*) in folder older than age_s; returns how many."""
+    removed = 0
+    now = time.time()
+    for tmp in Path(folder).glob(".*.tmp.*"):
+        try:
+            if now - tmp.stat().st_mtime > age_s:
+                tmp.unlink()
+                removed += 1
+        except OSError:
+            pass  # another process removed it, or it cannot be: harmless
+    return removed
 
 
 def load_npz(path: Path, required: tuple[str, ...] = ()) -> dict | None:
-    """The entry's arrays, or None when it is missing or damaged (truncated, unreadable, incomplete)."""
-    path = Path(path)
+    """The entry's arrays, or None when it is missing or damaged (load's reasons)."""
+    return _load(Path(path), required)[0]
+
+
+def _load(path: Path, required: tuple[str, ...]) -> tuple[dict | None, str | None]:
+    """(arrays, None), or (None, why not): missing (why None), unreadable, incomplete, stored under another name,
+    altered (its checksum) or holding NaN."""
     if not path.exists():
-        return None
+        return None, None
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
-    except Exception:
-        return None
+    except Exception as e:  # numpy raises many kinds for a truncated or foreign file
+        return None, f"unreadable ({type(e).__name__})"
+    key, check = data.pop(KEY_FIELD, None), data.pop(CHECKSUM_FIELD, None)
+    if key is None or check is None:
+        return None, "written by an older version (no checksum)"
+    if str(key) != path.name:
+        return None, f"holds the entry {str(key)!r}, not this one"
     if any(k not in data for k in required):
-        return None
-    return data
+        return None, "incomplete"
+    if str(check) != checksum(data):
+        return None, "altered or damaged (checksum mismatch)"
+    if any(np.issubdtype(a.dtype, np.floating) and np.isnan(a).any() for a in data.values()):
+        return None, "holds NaN"
+    return data, None

@@ -1,0 +1,90 @@
+"""The cache's entries: reused when intact; rebuilt, saying so, when damaged, renamed, altered or holding NaN;
+built once by concurrent builders; temporary files of killed runs removed."""
+
+import os
+import threading
+import time
+
+import numpy as np
+
+from pbvol_cli.pipeline.cache import cached_entry, remove_stale_temporaries, save_npz_atomic
+
+
+class Entry:
+    def __init__(self, values):
+        self.values = np.asarray(values, float)
+
+    def arrays(self):
+        return {"values": self.values}
+
+    @classmethod
+    def from_arrays(cls, data):
+        return cls(data["values"])
+
+
+def _get(path, builds, value=1.0, delay=0.0):
+    def build():
+        time.sleep(delay)
+        builds.append(threading.get_ident())
+        return Entry([value, 2.0, 3.0])
+
+    return cached_entry(path, ("values",), Entry.from_arrays, build)
+
+
+def test_an_intact_entry_is_reused_and_a_damaged_one_rebuilt_with_a_message(tmp_path, capsys):
+    path = tmp_path / "entry_abc.npz"
+    builds = []
+    entry, reused = _get(path, builds)
+    assert not reused and len(builds) == 1
+    entry, reused = _get(path, builds)
+    assert reused and len(builds) == 1 and entry.values[0] == 1.0
+    assert capsys.readouterr().err == ""
+    cases = {
+        "truncated": lambda: path.write_bytes(path.read_bytes()[:100]),
+        "altered": lambda: _rewrite(path, values=np.array([9.0, 2.0, 3.0])),
+        "holds NaN": lambda: save_npz_atomic(path, values=np.array([np.nan, 2.0, 3.0])),  # a valid checksum
+        "renamed": lambda: os.replace(_other(tmp_path), path),
+        "older version": lambda: np.savez(path, values=np.array([1.0, 2.0, 3.0])),
+    }
+    for what, damage in cases.items():
+        damage()
+        entry, reused = _get(path, builds)
+        err = capsys.readouterr().err
+        assert not reused and entry.values[0] == 1.0, what
+        assert err.count("\n") == 1 and str(path) in err and "rebuilding" in err, (what, err)
+    assert len(builds) == 1 + len(cases)
+
+
+def _rewrite(path, **changes):
+    """The entry's file with some arrays replaced and its stamp (name, checksum) kept: damage a checksum finds."""
+    with np.load(path) as z:
+        data = {k: z[k] for k in z.files}
+    data.update(changes)
+    np.savez_compressed(path, **data)
+
+
+def _other(folder):
+    other = folder / "entry_other.npz"
+    save_npz_atomic(other, values=np.array([1.0, 2.0, 3.0]))
+    return other
+
+
+def test_concurrent_builders_build_an_entry_once(tmp_path):
+    path = tmp_path / "entry_shared.npz"
+    builds, results = [], []
+    threads = [threading.Thread(target=lambda: results.append(_get(path, builds, delay=0.3))) for _ in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(builds) == 1
+    assert sorted(reused for _, reused in results) == [False, True, True]
+
+
+def test_temporary_files_of_killed_runs_are_removed(tmp_path):
+    old, fresh = tmp_path / ".entry_x.1234abcd.tmp.npz", tmp_path / ".entry_y.5678abcd.tmp.npz"
+    old.write_bytes(b"partial")
+    fresh.write_bytes(b"being written")
+    os.utime(old, (time.time() - 7200, time.time() - 7200))
+    assert remove_stale_temporaries(tmp_path) == 1
+    assert not old.exists() and fresh.exists()
