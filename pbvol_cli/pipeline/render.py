@@ -65,6 +65,32 @@ def implausible_pixels(img: np.ndarray, layers: dict | None = None, light_radian
     return None
 
 
+# image-sized buffers per pixel (bytes): volpath's accumulator, the mean and the float32 file; pbl's five layers
+# with their pass accumulators, the pixel statistics, the mean and the float32 layers (docs/pbl.md, memory)
+IMAGE_BYTES_PER_PIXEL = {"volpath": 96, "pbl": 800}
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to a new allocation (Linux MemAvailable), or None where unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def check_image_memory(method: str, width: int, height: int, available: int | None = None):
+    """Refuse, before any work, an image whose buffers alone would not fit in the available memory."""
+    need = IMAGE_BYTES_PER_PIXEL[method] * width * height
+    available = available_memory() if available is None else available
+    if available is not None and need > available:
+        raise PbvolError(f"--resolution {width}x{height}: the {method} image buffers need about "
+                         f"{need / 2**30:.1f} GiB, {available / 2**30:.1f} GiB is available; render smaller")
+
+
 def writable_file(path: Path, what: str):
     """Refuse, before any work, a file that cannot be written: its folder missing or read-only, or itself
     read-only or a folder."""
@@ -107,6 +133,7 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
     built = build_scene(scene, scene_path, opts.resolution)
     t_build = time.perf_counter() - t_build
     W, H = built.resolution
+    check_image_memory(opts.method, W, H)
     if ref_img is not None and ref_img.shape[:2] != (H, W):
         raise PbvolError(f"{reference}: reference is {ref_img.shape[1]}x{ref_img.shape[0]}, render is {W}x{H}")
 

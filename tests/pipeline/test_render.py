@@ -1,9 +1,11 @@
-"""The render stage refuses to pass off a failed image as a result."""
+"""The render stage refuses to pass off a failed image as a result, and work that cannot fit."""
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from conftest import camera, write_scene
+from pbvol_cli.errors import PbvolError
 from pbvol_cli.main import app
 from pbvol_cli.pipeline.render import ABSURD_FACTOR, implausible_pixels
 
@@ -41,3 +43,11 @@ def test_a_render_with_non_finite_pixels_exits_3_naming_the_file(tmp_path, monke
     r = runner.invoke(app, ["render", str(scene), "-o", str(tmp_path / "o.exr"), "-q"])
     assert r.exit_code == 3, r.output  # EXIT_RENDER_FAILED: not bad input
     assert "o.exr" in r.stderr and "non-finite" in r.stderr and "\n" not in r.stderr.strip()
+
+
+def test_an_image_too_large_for_the_memory_is_refused_before_the_work():
+    from pbvol_cli.pipeline.render import check_image_memory
+
+    check_image_memory("pbl", 512, 512, available=1 << 30)  # fits
+    with pytest.raises(PbvolError, match=r"--resolution 16384x16384: the pbl image buffers need about 200.0 GiB"):
+        check_image_memory("pbl", 16384, 16384, available=8 << 30)
