@@ -19,7 +19,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from pbvol_cli.geometry.scene_build import MED_G, MED_PHASE, MED_SIGMA_A, MED_SIGMA_S
-from pbvol_cli.pointbased.octree import build_octree
+from pbvol_cli.pointbased.octree import Octree, build_octree
 
 END_EXTENSION = 3.0  # kernel radii by which segments on the boundary are continued (single scattering)
 
@@ -114,8 +114,13 @@ class SampleSet:
         tree = build_octree(centre, box_lo, box_hi, dirs, self.scat)
         beam_radius = rb / beam_width
         self.count = int(sel.sum())
-        self.kernel = VolumeSamples(tree.arrays(), start, dirs, length, power, area, centre, self.scat, beam_radius,
-                                    ends, plane, tuple(tables), near_field_radius(start, dirs, length, beam_radius))
+        r_near = near_field_radius(start, dirs, length, beam_radius)
+        # the samples stored in the tree's order: a leaf's samples are then contiguous in memory, and the kernels'
+        # leaf scans (i = order[k], now k) read them in sequence instead of at random (the same sums, faster)
+        o = tree.order
+        tree = Octree(np.arange(len(o), dtype=np.int64), *tree.arrays()[1:])
+        self.kernel = VolumeSamples(tree.arrays(), start[o], dirs[o], length[o], power[o], area[o], centre[o],
+                                    self.scat[o], beam_radius[o], ends[o], plane[o], tuple(tables), r_near)
 
 
 def scattered_share(base: SampleSet, other: SampleSet) -> float:
