@@ -111,6 +111,17 @@ def depth_of_fraction(u, s):
 
 
 @njit(inline="always", cache=True)
+def stratified_depth(k, n, xi, s, dmax, frac):
+    """Point k of n stratified along a segment of length dmax in a medium whose smallest extinction is s (s = 0:
+    uniform): u = (k + xi) / n of the extinguished share frac = 1 - e^(-s dmax). Returns (depth, its pdf)."""
+    u = (k + xi) / n * frac
+    if s > 0.0:
+        d = depth_of_fraction(u, s)
+        return d, s * math.exp(-s * d) / frac
+    return u * dmax, 1.0 / dmax
+
+
+@njit(inline="always", cache=True)
 def power_heuristic(pa, pb):
     a2 = pa * pa
     return a2 / (a2 + pb * pb) if a2 > 0.0 else 0.0

@@ -15,11 +15,11 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from pbvol_cli.physics.sampling import depth_of_fraction, rand
+from pbvol_cli.physics.sampling import rand, stratified_depth
 from pbvol_cli.pointbased.light_cut import double_multiple
 from pbvol_cli.pointbased.radiance_cache import CacheSettings, shared_terms
 from pbvol_cli.pointbased.single_scattering import single_scattering
-from pbvol_cli.pointbased.volume_samples import ENTRY_N, ENTRY_Q, EXIT_N, EXIT_Q, PLANE_COLS, Query
+from pbvol_cli.pointbased.volume_samples import ENTRY_N, ENTRY_Q, EXIT_N, EXIT_Q, PLANE_COLS, Query, nearer_plane
 
 GatherSettings = namedtuple("GatherSettings", ["kmax", "cut_size", "clamp", "single", "double", "multiple",
                                                "kmax_scattered", "kmax_diffuse"])
@@ -60,24 +60,14 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, pla
         if (comp == 0 and not do_s) or (comp == 1 and not (do_d or do_m)):
             continue
         for k in range(n):
-            u = (k + xi) / n * frac
-            if s > 0.0:
-                d = depth_of_fraction(u, s)
-                pdf = s * math.exp(-s * d) / frac
-            else:
-                d = u * dmax
-                pdf = 1.0 / dmax
+            d, pdf = stratified_depth(k, n, xi, s, dmax, frac)
             px, py, pz = pos[i, 0] + d * dirs[i, 0], pos[i, 1] + d * dirs[i, 1], pos[i, 2] + d * dirs[i, 2]
             o[:] = 0.0
             o3[:] = 0.0
             if comp == 0:
                 single_scattering(vs, med, Query(px, py, pz, wx, wy, wz, pplane), o)
             else:
-                # the point's boundary plane: the nearer of the segment's start and end planes
-                e = EXIT_N if (planes[i, EXIT_Q] - (planes[i, EXIT_N] * px + planes[i, EXIT_N + 1] * py
-                                                    + planes[i, EXIT_N + 2] * pz)
-                               < planes[i, ENTRY_Q] - (planes[i, ENTRY_N] * px + planes[i, ENTRY_N + 1] * py
-                                                       + planes[i, ENTRY_N + 2] * pz)) else ENTRY_N
+                e = nearer_plane(planes, i, px, py, pz)
                 for c in range(4):
                     pplane[c] = planes[i, e + c]
                 double_multiple(vs, med, Query(px, py, pz, wx, wy, wz, pplane), settings.cut_size, settings.clamp,

@@ -22,10 +22,10 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from pbvol_cli.physics.sampling import depth_of_fraction, rand
+from pbvol_cli.physics.sampling import rand, stratified_depth
 from pbvol_cli.pointbased.light_cut import double_multiple
 from pbvol_cli.pointbased.single_scattering import single_scattering
-from pbvol_cli.pointbased.volume_samples import ENTRY_N, ENTRY_Q, EXIT_N, EXIT_Q, Query
+from pbvol_cli.pointbased.volume_samples import Query, nearer_plane
 
 CacheSettings = namedtuple("CacheSettings", ["cell", "lateral", "directions", "single"])
 CacheSettings.__doc__ = """Sharing of the smooth terms: bins `cell` mean free paths (the medium's densest channel; 0:
@@ -59,23 +59,13 @@ def _scattered_points(idx, pos, dirs, beta, tseg, rng, med, k2, planes, out):
         frac = -math.expm1(-s * dmax) if s > 0.0 else 1.0
         xi = rand(rng, i)
         for k in range(k2):
-            u = (k + xi) / k2 * frac
-            if s > 0.0:
-                d = depth_of_fraction(u, s)
-                pdf = s * math.exp(-s * d) / frac
-            else:
-                d = u * dmax
-                pdf = 1.0 / dmax
+            d, pdf = stratified_depth(k, k2, xi, s, dmax, frac)
             px, py, pz = pos[i, 0] + d * dirs[i, 0], pos[i, 1] + d * dirs[i, 1], pos[i, 2] + d * dirs[i, 2]
             out.pos[m, 0], out.pos[m, 1], out.pos[m, 2] = px, py, pz
             for c in range(3):
                 out.dir[m, c] = -dirs[i, c]
                 out.weight[m, c] = beta[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * d) / (pdf * k2)
-            # the point's boundary plane: the nearer of the segment's start and end planes
-            e = EXIT_N if (planes[i, EXIT_Q] - (planes[i, EXIT_N] * px + planes[i, EXIT_N + 1] * py
-                                                + planes[i, EXIT_N + 2] * pz)
-                           < planes[i, ENTRY_Q] - (planes[i, ENTRY_N] * px + planes[i, ENTRY_N + 1] * py
-                                                   + planes[i, ENTRY_N + 2] * pz)) else ENTRY_N
+            e = nearer_plane(planes, i, px, py, pz)
             for c in range(4):
                 out.plane[m, c] = planes[i, e + c]
             out.owner[m] = i

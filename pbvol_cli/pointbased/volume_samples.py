@@ -17,6 +17,7 @@ from collections import namedtuple
 from types import SimpleNamespace
 
 import numpy as np
+from numba import njit
 
 from pbvol_cli.geometry.scene_build import MED_G, MED_PHASE, MED_SIGMA_A, MED_SIGMA_S
 from pbvol_cli.pointbased.octree import Octree, build_octree
@@ -47,6 +48,16 @@ SAMPLE_KEYS = ("v_start", "v_dir", "v_len", "v_power", "v_area", "v_medium", "v_
 
 NEAR_FIELD_RADII = 3.0  # double scattering's near field (summed exactly): at most this many median beam radii,
 NEAR_FIELD_COUNT = 16.0  # and holding about this many segments (dense samples would make it costly)
+
+
+@njit(inline="always", cache=True)
+def nearer_plane(planes, i, px, py, pz):
+    """The column (ENTRY_N or EXIT_N) of segment i's boundary plane nearer to the point (px, py, pz): the plane
+    its smooth terms take (planes: segment_planes's table)."""
+    exit_depth = planes[i, EXIT_Q] - (planes[i, EXIT_N] * px + planes[i, EXIT_N + 1] * py + planes[i, EXIT_N + 2] * pz)
+    entry_depth = planes[i, ENTRY_Q] - (planes[i, ENTRY_N] * px + planes[i, ENTRY_N + 1] * py
+                                        + planes[i, ENTRY_N + 2] * pz)
+    return EXIT_N if exit_depth < entry_depth else ENTRY_N
 
 
 def medium_params(media: np.ndarray, m: int) -> Medium:

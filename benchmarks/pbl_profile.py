@@ -1,0 +1,74 @@
+#!/usr/bin/env python3
+"""Where a pbl render spends its time: the stages of its passes timed (the kernels run as they are).
+
+    .venv/bin/python benchmarks/pbl_profile.py [--scene oil_sphere] [--resolution 128] [--spp 2] [--cache DIR]
+
+Prints the render's time and, per stage, its total seconds over the passes and how often it ran: the lights' and
+the bounced samples' evaluation along camera segments (per point: single scattering and what is not shared;
+shared: the smooth terms evaluated once per bin), the light side of a pass (placing a new light-sample set, the
+octrees over its volume samples, the bounced samples), the camera paths' surface work. A warm-up render first, so
+that compiling is not counted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+
+def main():
+    import pbvol_cli.pointbased.camera_pass as camera_pass
+    import pbvol_cli.pointbased.gather as gather
+    import pbvol_cli.pointbased.passes as passes
+    from pbvol_cli.pipeline.render import RenderOptions, render_scene
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scene", default="oil_sphere", help="a config name in configs/ or a scene file")
+    ap.add_argument("--resolution", type=int, default=128)
+    ap.add_argument("--spp", type=int, default=2)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
+    args = ap.parse_args()
+    scene = Path(args.scene) if args.scene.endswith(".toml") else ROOT / "configs" / f"{args.scene}.toml"
+    seconds, calls = collections.defaultdict(float), collections.defaultdict(int)
+
+    def timed(module, name, label):
+        f = getattr(module, name)
+
+        def wrapper(*a, **k):
+            t = time.perf_counter()
+            try:
+                return f(*a, **k)
+            finally:
+                seconds[label] += time.perf_counter() - t
+                calls[label] += 1
+
+        setattr(module, name, wrapper)
+
+    timed(gather, "_on_threads", "medium terms per point (single, and all after a diffuse bounce)")
+    timed(gather, "shared_terms", "medium terms shared in bins (double, multiple, bounced)")
+    timed(passes, "place_light_samples", "light side: a new light-sample set")
+    timed(passes, "SampleSet", "light side: octrees over the volume samples")
+    timed(passes, "_bounced_set", "light side: the bounced samples")
+    for name in ("closest_surface_hits", "light_hits", "visible", "_interact", "segment_planes"):
+        timed(camera_pass, name, "camera paths: hits, shadow rays, interfaces")
+    opts = dict(method="pbl", threads=args.threads, cache_dir=args.cache, quiet=True)
+    (ROOT / "bench-out").mkdir(exist_ok=True)
+    render_scene(scene, ROOT / "bench-out" / "profile-warm.exr", RenderOptions(spp=1, resolution=(8, 8), **opts))
+    seconds.clear()
+    calls.clear()
+    s = render_scene(scene, ROOT / "bench-out" / "profile.exr",
+                     RenderOptions(spp=args.spp, resolution=(args.resolution, args.resolution), **opts))
+    print(f"{scene.stem} {args.resolution}x{args.resolution}, {args.spp} passes: {s['time_s']:.2f} s")
+    for label in sorted(seconds, key=lambda k: -seconds[k]):
+        print(f"  {seconds[label]:7.2f} s  {calls[label]:5d} calls  {label}")
+
+
+if __name__ == "__main__":
+    main()
