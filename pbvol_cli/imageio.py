@@ -186,12 +186,15 @@ def write_exr(
     image: np.ndarray,
     metadata: dict[str, str | int | float] | None = None,
     layers: dict[str, np.ndarray] | None = None,
+    date_time: str | None = None,
 ) -> None:
     """Write a float32, zip-compressed RGB EXR, atomically.
 
     ``image`` is (H, W, 3) (any float dtype, any memory layout). ``metadata`` entries become
     ``pbvol:<key>`` header attributes. ``layers`` maps a layer name to an (H, W, 3) image written
     as channels ``<layer>.R``, ``<layer>.G``, ``<layer>.B`` after the main ``R``, ``G``, ``B``.
+    ``date_time`` ("YYYY:MM:DD HH:MM:SS") replaces the writing time that OpenImageIO otherwise stamps, so that
+    the same pixels and metadata give the same bytes.
     Raises PbvolError (one line, naming the file) if OpenImageIO fails; ValueError/TypeError for
     malformed arguments.
     """
@@ -216,6 +219,8 @@ def write_exr(
     spec = oiio.ImageSpec(w, h, pixels.shape[2], oiio.FLOAT)
     spec.channelnames = tuple(names)
     spec.attribute("compression", "zip")
+    if date_time is not None:
+        spec.attribute("DateTime", date_time)
     _set_metadata(spec, metadata or {})
     _write_atomic(path, pixels, spec, "EXR")
 

@@ -119,6 +119,8 @@ def render(
     cache_dir: CacheDirOpt = None,
     quiet: QuietOpt = False,
     as_json: JsonOpt = False,
+    timings: Annotated[bool, typer.Option(help="record times in the EXR metadata (--no-timings: leave them and the "
+                                          "writing date out, so the same render gives the same bytes)")] = True,
 ):
     """Render SCENE to an EXR image (float32 RGB with metadata)."""
     from pbvol_cli.pipeline.cache import cache_dir as resolve_cache
@@ -128,7 +130,7 @@ def render(
         resolve_cache(cache_dir)
         opts = RenderOptions(method=method, spp=spp, seed=seed, threads=threads, time_limit=time_limit,
                              resolution=_parse_resolution(resolution), orders=orders, max_depth=max_depth,
-                             components=components, cache_dir=cache_dir, quiet=quiet)
+                             components=components, cache_dir=cache_dir, quiet=quiet, timings=timings)
         summary = render_scene(scene, output, opts, preview=preview, reference=reference, exposure=exposure)
     except RenderFailed as e:
         _fail(e, EXIT_RENDER_FAILED)
@@ -155,7 +157,7 @@ def precompute_lut(
 
     try:
         set_threads(threads)
-        precompute(file, resolve_cache(cache_dir), particles, seed, force, quiet, typer.echo)
+        precompute(file, resolve_cache(cache_dir, for_writing=True), particles, seed, force, quiet, typer.echo)
     except (PbvolError, OSError) as e:
         _fail(e)
 
@@ -183,7 +185,7 @@ def place_samples(
         prog, update = progress_bar(quiet, "place-samples", "steps")
         with prog:
             r = get_light_samples(built, sc.render.pbl, sc.render.seed if seed is None else seed,
-                                  resolve_cache(cache_dir), n, force, update)
+                                  resolve_cache(cache_dir, for_writing=True), n, force, update)
     except (PbvolError, OSError) as e:
         _fail(e)
     what = "reused cached samples" if r.reused else f"placed in {r.seconds:.2f} s"

@@ -141,6 +141,35 @@ def test_inputs_that_cannot_work_are_refused_before_the_render(tmp_path):
     assert not (tmp_path / "x.exr").exists()
 
 
+def test_an_unwritable_cache_is_refused_by_the_cache_builders_and_read_only_for_render(tmp_path):
+    (tmp_path / "file").write_text("a file where the cache folder should be")
+    cache = str(tmp_path / "file" / "cache")
+    path = write_scene(tmp_path, {**GOOD, "render": {"spp": 1, "pbl": {"surface_samples": 200,
+                                                                         "segments_per_beam": 2}}})
+    for cmd in (["precompute-lut", "materials/wax.toml"], ["place-samples", str(path)]):
+        _one_line_error(runner.invoke(app, [*cmd, "--cache-dir", cache, "-q"]), "cannot write to it", "--cache-dir")
+    r = runner.invoke(app, ["render", str(path), "-o", str(tmp_path / "x.exr"), "--method", "pbl",
+                            "--components", "single", "-q", "--cache-dir", cache])
+    assert r.exit_code == 0, r.output
+    assert "for this run only" in r.stderr and r.stderr.count("\n") == 1, r.stderr
+    assert (tmp_path / "x.exr").exists()
+
+
+def test_no_timings_gives_byte_identical_files(tmp_path):
+    path = write_scene(tmp_path, {**GOOD, "render": {"spp": 1, "pbl": {"surface_samples": 200,
+                                                                         "segments_per_beam": 2}}})
+    for method in ("volpath", "pbl"):  # pbl: the first run places the light samples, the second reuses them
+        files = [tmp_path / f"{method}{i}.exr" for i in range(2)]
+        for f in files:
+            r = runner.invoke(app, ["render", str(path), "-o", str(f), "--method", method, "-q", "--threads", "2",
+                                    "--cache-dir", str(tmp_path / "cache"), "--no-timings",
+                                    "--components", "single,double"])
+            assert r.exit_code == 0, r.output
+        assert files[0].read_bytes() == files[1].read_bytes(), method
+        _, meta = read_exr(files[0])
+        assert "time_s" not in meta and not any(k.startswith("stage_") for k in meta) and meta["seed"] == 0
+
+
 def test_json_summaries_for_scripts(tmp_path):
     path = write_scene(tmp_path, GOOD)
     c = runner.invoke(app, ["check", str(path), "--json"])

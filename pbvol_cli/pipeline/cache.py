@@ -5,7 +5,8 @@ Entries are written to a temporary file in the same directory and moved into pla
 reader never sees half a file. Each entry carries its own file name (which holds its key) and a checksum of its
 arrays: an entry that fails to load, was renamed, was altered or holds NaN is rebuilt, with a line on stderr saying
 so. Builders of one entry take a lock, so that two processes build it once; temporary files that a killed run left
-behind are removed.
+behind are removed. A cache that cannot be written (a read-only folder or disk) still serves the entries it holds;
+what is missing is built for the run only, with one line on stderr per folder.
 """
 
 from __future__ import annotations
@@ -21,8 +22,12 @@ from pathlib import Path
 
 import numpy as np
 
+from pbvol_cli.errors import PbvolError
 
-def cache_dir(explicit: str | os.PathLike | None = None) -> Path:
+
+def cache_dir(explicit: str | os.PathLike | None = None, for_writing: bool = False) -> Path:
+    """The cache folder, created when missing. for_writing (the commands whose job is to fill the cache): refuse
+    a folder that cannot be written, naming it; else (render) an unwritable cache is used read-only."""
     if explicit:
         d = Path(explicit)
     elif os.environ.get("PBVOL_CACHE_DIR"):
@@ -30,8 +35,34 @@ def cache_dir(explicit: str | os.PathLike | None = None) -> Path:
     else:
         base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
         d = Path(base) / "pbvol"
-    d.mkdir(parents=True, exist_ok=True)
+    problem = unwritable(d)
+    if problem and for_writing:
+        raise PbvolError(f"cache {d}: cannot write to it ({problem}); choose another with --cache-dir or "
+                         f"$PBVOL_CACHE_DIR")
     return d
+
+
+def unwritable(folder: Path) -> str | None:
+    """Why a file cannot be created in folder (made when missing), or None when it can: tried, not guessed
+    (permission bits say nothing to root or about a read-only disk)."""
+    try:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        probe = Path(folder) / f".{uuid.uuid4().hex[:8]}.tmp.probe"  # removed as stale if a kill leaves it
+        probe.touch()
+        probe.unlink()
+    except OSError as e:
+        return e.strerror or type(e).__name__
+    return None
+
+
+_REPORTED: set[str] = set()  # unwritable folders already reported (one line per folder and process)
+
+
+def _report_unwritable(folder: Path, why: str):
+    if str(folder) not in _REPORTED:
+        _REPORTED.add(str(folder))
+        print(f"cache: {folder} cannot be written ({why}): what it lacks is built for this run only",
+              file=sys.stderr)
 
 
 def key_of(**parts) -> str:
@@ -72,24 +103,36 @@ def cached_entry(path: Path, required: tuple[str, ...], from_arrays, build, forc
     """(entry, reused): the entry at path rebuilt from its arrays by from_arrays, or, when it is missing, damaged
     (load_npz's reasons, or from_arrays raises ValueError, KeyError or TypeError) or force is set, build()'s, whose
     .arrays() are then stored atomically. A process that finds another building the entry waits for it and takes
-    its result."""
+    its result. In a folder that cannot be written the entry is read when intact and otherwise built unstored."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    why = unwritable(path.parent)
+    if why:
+        _report_unwritable(path.parent, why)
+        return _reuse_or_build(path, required, from_arrays, build, force, store=False)
     remove_stale_temporaries(path.parent)
     with open(path.with_name(f".{path.name}.lock"), "a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, also when the process is killed
-        if not force:
-            data, problem = _load(path, required)
-            if data is not None:
-                try:
-                    return from_arrays(data), True
-                except (ValueError, KeyError, TypeError) as e:
-                    problem = f"unusable ({e})"
-            if problem:
-                print(f"cache: {path}: {problem}; rebuilding it", file=sys.stderr)
-        entry = build()
-        save_npz_atomic(path, **entry.arrays())
-        return entry, False
+        return _reuse_or_build(path, required, from_arrays, build, force, store=True)
+
+
+def _reuse_or_build(path, required, from_arrays, build, force, store):
+    if not force:
+        data, problem = _load(path, required)
+        if data is not None:
+            try:
+                return from_arrays(data), True
+            except (ValueError, KeyError, TypeError) as e:
+                problem = f"unusable ({e})"
+        if problem:
+            print(f"cache: {path}: {problem}; {'rebuilding it' if store else 'building it for this run'}",
+                  file=sys.stderr)
+    entry = build()
+    if store:
+        try:
+            save_npz_atomic(path, **entry.arrays())
+        except OSError as e:  # the disk filled up or was made read-only during the build: keep the result
+            _report_unwritable(path.parent, e.strerror or type(e).__name__)
+    return entry, False
 
 
 def remove_stale_temporaries(folder: Path, age_s: float = STALE_TEMP_S) -> int:

@@ -32,6 +32,7 @@ class RenderOptions:
     components: str | None = None
     cache_dir: Path | None = None
     quiet: bool = False
+    timings: bool = True  # False: no times, peaks or cache reuse in the file, a fixed date: byte-identical reruns
 
 
 def scene_hash(scene: C.Scene, built) -> str:
@@ -41,6 +42,8 @@ def scene_hash(scene: C.Scene, built) -> str:
         h.update(np.ascontiguousarray(arr).tobytes())
     return h.hexdigest()[:16]
 
+
+FIXED_DATE_TIME = "1970:01:01 00:00:00"  # the EXR's DateTime when timings are left out
 
 ABSURD_FACTOR = 1e6  # a pixel this many times brighter than the scene's light can make it is a numerical failure
 
@@ -157,19 +160,21 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
                 )
     elapsed = stats["time_s"]
     meta = {
-        "method": opts.method, "spp": spp_done, "seed": seed, "threads": threads,
-        "time_s": round(elapsed, 4), "build_s": round(t_build, 4), "version": __version__,
+        "method": opts.method, "spp": spp_done, "seed": seed, "threads": threads, "version": __version__,
         "scene": str(scene_path), "scene_hash": scene_hash(scene, built),
         "orders": opts.orders or "all", "max_depth": max_depth,
-        **{f"stage_{k}": round(v, 4) for k, v in stages.items()},
     }
+    if opts.timings:
+        meta.update({"time_s": round(elapsed, 4), "build_s": round(t_build, 4),
+                     **{f"stage_{k}": round(v, 4) for k, v in stages.items()}})
     if opts.method == "pbl":  # camera paths per pixel and pass (the mean over passes; 0 in the setting: auto)
         ks = stats["surface_paths"]
         meta["surface_paths"] = float(np.mean(ks))
         meta["surface_paths_per_pass"] = ",".join(f"{k:.4g}" for k in ks)
         meta["surface_paths_setting"] = scene.render.pbl.surface_paths
     write_exr(out_path, img.astype(np.float32), meta,
-              layers={k: v.astype(np.float32) for k, v in layers.items()} if layers else None)
+              layers={k: v.astype(np.float32) for k, v in layers.items()} if layers else None,
+              date_time=None if opts.timings else FIXED_DATE_TIME)
     problem = implausible_pixels(img, layers, float(built.lights[:, LIGHT_RGB:LIGHT_RGB + 3].max(initial=0.0)))
     if problem:
         raise RenderFailed(f"{out_path}: written, but {problem}: the render failed (please report the scene)")

@@ -1,5 +1,5 @@
 """The cache's entries: reused when intact; rebuilt, saying so, when damaged, renamed, altered or holding NaN;
-built once by concurrent builders; temporary files of killed runs removed."""
+built once by concurrent builders; temporary files of killed runs removed; an unwritable cache read, not written."""
 
 import os
 import threading
@@ -7,7 +7,11 @@ import time
 
 import numpy as np
 
-from pbvol_cli.pipeline.cache import cached_entry, remove_stale_temporaries, save_npz_atomic
+import pytest
+
+from pbvol_cli.errors import PbvolError
+from pbvol_cli.pipeline import cache as cache_module
+from pbvol_cli.pipeline.cache import cache_dir, cached_entry, remove_stale_temporaries, save_npz_atomic
 
 
 class Entry:
@@ -88,3 +92,31 @@ def test_temporary_files_of_killed_runs_are_removed(tmp_path):
     os.utime(old, (time.time() - 7200, time.time() - 7200))
     assert remove_stale_temporaries(tmp_path) == 1
     assert not old.exists() and fresh.exists()
+
+
+def test_an_unwritable_cache_serves_what_it_holds_and_builds_the_rest_unstored(tmp_path, monkeypatch, capsys):
+    held = tmp_path / "entry_held.npz"
+    builds = []
+    _get(held, builds)
+    capsys.readouterr()
+    # permission bits do not stop root: a read-only disk is what the probe meets
+    monkeypatch.setattr(cache_module, "unwritable", lambda folder: "Read-only file system")
+    entry, reused = _get(held, builds)
+    assert reused and len(builds) == 1
+    missing = tmp_path / "entry_missing.npz"
+    for _ in range(2):
+        entry, reused = _get(missing, builds, value=7.0)
+        assert not reused and entry.values[0] == 7.0 and not missing.exists()
+    assert len(builds) == 3
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Read-only file system" in err and "for this run only" in err, err
+
+
+def test_a_cache_folder_that_cannot_exist_is_named(tmp_path):
+    (tmp_path / "file").write_text("not a folder")
+    assert cache_module.unwritable(tmp_path / "file" / "cache")
+    assert cache_module.unwritable(tmp_path / "fine") is None and (tmp_path / "fine").is_dir()
+    assert not list((tmp_path / "fine").iterdir())  # the probe is gone
+    with pytest.raises(PbvolError, match="file/cache: cannot write to it"):
+        cache_dir(tmp_path / "file" / "cache", for_writing=True)
+    assert cache_dir(tmp_path / "file" / "cache") == tmp_path / "file" / "cache"  # read-only use: no error
