@@ -722,11 +722,12 @@ def load_scene(path: Path) -> Scene:
 
 
 def materials_dir() -> Path:
-    """Where the preset material files live: $PBVOL_MATERIALS, else the repository's materials/."""
+    """Where the preset material files live: $PBVOL_MATERIALS, else the package's materials/ (installed with it;
+    the repository's top-level materials/ links to it)."""
     env = os.environ.get("PBVOL_MATERIALS")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parent.parent / "materials"
+    return Path(__file__).resolve().parent / "materials"
 
 
 def preset_names() -> list[str]:

@@ -193,13 +193,20 @@ def place_samples(
                f"peak memory {peak_memory_mb():.0f} MiB -> {r.path}")
 
 
+GATED_METRICS = {"mse": "mse", "rel-mse": "rel_mse"}  # compare --metric: the key of image_metrics it reads
+
+
 @app.command()
 def compare(
     image: Annotated[Path, typer.Argument(help="image to evaluate")],
     reference: Annotated[Path, typer.Argument(help="reference image")],
     diff: Annotated[Optional[Path], typer.Option(help="write a false-colour error image (PNG)")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="print the metrics as JSON")] = False,
-    fail_above: Annotated[Optional[float], typer.Option(help="exit with status 2 when the MSE exceeds this")] = None,
+    fail_above: Annotated[Optional[float], typer.Option(help="exit with status 2 when the --metric exceeds this")]
+    = None,
+    metric: Annotated[str, typer.Option(help="what --fail-above bounds: mse, or rel-mse (the relative MSE, "
+                                        "(a - b)^2 / (b^2 + 0.01), which weighs dark and bright pixels alike)")]
+    = "mse",
 ):
     """MSE, relative MSE and PSNR of IMAGE against REFERENCE, overall and per channel."""
     from pbvol_cli.imageio import read_exr
@@ -208,6 +215,8 @@ def compare(
     try:
         if fail_above is not None and not math.isfinite(fail_above):
             raise PbvolError(f"--fail-above: expected a finite number, got {fail_above}")
+        if metric not in GATED_METRICS:
+            raise PbvolError(f"--metric: expected one of {', '.join(GATED_METRICS)}, got {metric!r}")
         a, _ = read_exr(image)
         b, _ = read_exr(reference)
         try:
@@ -221,8 +230,9 @@ def compare(
     except PbvolError as e:
         _fail(e)
     typer.echo(json.dumps(m, allow_nan=False) if as_json else format_report(m, str(image), str(reference)))
-    if fail_above is not None and m["mse"] > fail_above:
-        typer.echo(f"FAIL: MSE {m['mse']:.6g} exceeds {fail_above:g}", err=True)
+    value = m[GATED_METRICS[metric]]
+    if fail_above is not None and value > fail_above:
+        typer.echo(f"FAIL: {metric} {value:.6g} exceeds {fail_above:g}", err=True)
         raise typer.Exit(EXIT_COMPARISON_FAILED)
 
 

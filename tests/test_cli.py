@@ -224,6 +224,13 @@ def test_compare_known_mse_json_and_gate(tmp_path):
     assert gate.exit_code == 2
     ok = runner.invoke(app, ["compare", str(tmp_path / "a.exr"), str(tmp_path / "b.exr"), "--fail-above", "0.1"])
     assert ok.exit_code == 0
+    # the relative MSE of G: 0.04 / (0.7^2 + 0.01) = 0.08, over three channels 0.0267; the MSE is 0.0133
+    assert m["rel_mse"] == pytest.approx(0.08 / 3, rel=1e-6)
+    for metric, bound, status in (("rel-mse", "0.02", 2), ("rel-mse", "0.03", 0), ("mse", "0.02", 0)):
+        r = runner.invoke(app, ["compare", str(tmp_path / "a.exr"), str(tmp_path / "b.exr"), "--fail-above", bound,
+                                "--metric", metric])
+        assert r.exit_code == status, (metric, bound, r.output)
+        assert (f"FAIL: {metric}" in r.stderr) == (status == 2)
 
 
 def test_compare_errors(tmp_path):
@@ -237,6 +244,8 @@ def test_compare_errors(tmp_path):
     _one_line_error(runner.invoke(app, ["compare", str(tmp_path / "zz.exr"), str(tmp_path / "a.exr")]), "zz.exr")
     _one_line_error(runner.invoke(app, ["compare", str(tmp_path / "a.exr"), str(tmp_path / "a.exr"), "--fail-above",
                                         "nan"]), "--fail-above", "finite")
+    _one_line_error(runner.invoke(app, ["compare", str(tmp_path / "a.exr"), str(tmp_path / "a.exr"), "--metric",
+                                        "psnr"]), "--metric", "rel-mse")
 
 
 def test_render_writes_exr_with_metadata_preview_and_reference_mse(tmp_path):
