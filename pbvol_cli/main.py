@@ -176,11 +176,12 @@ def place_samples(
     from pbvol_cli.geometry.scene_build import build_scene
     from pbvol_cli.pipeline.cache import cache_dir as resolve_cache
     from pbvol_cli.pipeline.progress import peak_memory_mb, progress_bar, set_threads
-    from pbvol_cli.pipeline.samples import get_light_samples
+    from pbvol_cli.pipeline.samples import check_samples_memory, get_light_samples
 
     try:
         n = set_threads(threads)
         sc = C.load_scene(scene)
+        check_samples_memory(sc.render.pbl, scene)
         built = build_scene(sc, scene)
         prog, update = progress_bar(quiet, "place-samples", "steps")
         with prog:

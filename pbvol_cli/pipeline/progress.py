@@ -88,6 +88,18 @@ def peak_memory_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def available_memory() -> int | None:
+    """Bytes of memory available to a new allocation (Linux MemAvailable), or None where unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
 class CompileMonitor:
     """Watches numba compile kernels during a stage: announces it once on stderr (a fresh install compiles the
     kernels on its first render, minutes on 2 cores; they are cached afterwards) and measures the seconds spent

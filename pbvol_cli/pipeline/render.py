@@ -14,7 +14,7 @@ from pbvol_cli import __version__
 from pbvol_cli import config as C
 from pbvol_cli.errors import PbvolError, RenderFailed
 from pbvol_cli.physics.lights import LIGHT_RGB
-from pbvol_cli.pipeline.progress import CompileMonitor, peak_memory_mb, progress_bar, set_threads
+from pbvol_cli.pipeline.progress import CompileMonitor, available_memory, peak_memory_mb, progress_bar, set_threads
 
 METHODS = ("volpath", "pbl")
 
@@ -73,25 +73,20 @@ def implausible_pixels(img: np.ndarray, layers: dict | None = None, light_radian
 IMAGE_BYTES_PER_PIXEL = {"volpath": 96, "pbl": 800}
 
 
-def available_memory() -> int | None:
-    """Bytes of memory available to a new allocation (Linux MemAvailable), or None where unknown."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        return None
-    return None
+def check_memory(method: str, width: int, height: int, pbl=None, scene_path="", available: int | None = None):
+    """Refuse, before any work, a render whose image buffers and (pbl, for a scene with a medium: pbl given) light
+    samples would not fit in the available memory, naming what to lower."""
+    from pbvol_cli.pipeline.samples import check_samples_memory, samples_memory
 
-
-def check_image_memory(method: str, width: int, height: int, available: int | None = None):
-    """Refuse, before any work, an image whose buffers alone would not fit in the available memory."""
-    need = IMAGE_BYTES_PER_PIXEL[method] * width * height
+    image = IMAGE_BYTES_PER_PIXEL[method] * width * height
+    samples = samples_memory(pbl) if pbl is not None else 0
     available = available_memory() if available is None else available
-    if available is not None and need > available:
+    if available is None or image + samples <= available:
+        return
+    if image >= samples:
         raise PbvolError(f"--resolution {width}x{height}: the {method} image buffers need about "
-                         f"{need / 2**30:.1f} GiB, {available / 2**30:.1f} GiB is available; render smaller")
+                         f"{image / 2**30:.1f} GiB, {available / 2**30:.1f} GiB is available; render smaller")
+    check_samples_memory(pbl, scene_path, available - image)  # what is left beside the image
 
 
 def writable_file(path: Path, what: str):
@@ -136,7 +131,7 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
     built = build_scene(scene, scene_path, opts.resolution)
     t_build = time.perf_counter() - t_build
     W, H = built.resolution
-    check_image_memory(opts.method, W, H)
+    check_memory(opts.method, W, H, rs.pbl if opts.method == "pbl" and built.medium_info else None, scene_path)
     if ref_img is not None and ref_img.shape[:2] != (H, W):
         raise PbvolError(f"{reference}: reference is {ref_img.shape[1]}x{ref_img.shape[0]}, render is {W}x{H}")
 

@@ -45,9 +45,15 @@ def test_a_render_with_non_finite_pixels_exits_3_naming_the_file(tmp_path, monke
     assert "o.exr" in r.stderr and "non-finite" in r.stderr and "\n" not in r.stderr.strip()
 
 
-def test_an_image_too_large_for_the_memory_is_refused_before_the_work():
-    from pbvol_cli.pipeline.render import check_image_memory
+def test_an_image_or_light_samples_too_large_for_the_memory_are_refused_before_the_work():
+    from pbvol_cli.config import PblSettings
+    from pbvol_cli.pipeline.render import check_memory
 
-    check_image_memory("pbl", 512, 512, available=1 << 30)  # fits
+    check_memory("pbl", 512, 512, available=1 << 30)  # fits
     with pytest.raises(PbvolError, match=r"--resolution 16384x16384: the pbl image buffers need about 200.0 GiB"):
-        check_image_memory("pbl", 16384, 16384, available=8 << 30)
+        check_memory("pbl", 16384, 16384, available=8 << 30)
+    # the defaults: 20k surface samples x 16 segments x 9 generations at 350 B, about 0.94 GiB at most
+    check_memory("pbl", 512, 512, PblSettings(), available=2 << 30)
+    with pytest.raises(PbvolError, match=r"s\.toml: render\.pbl\.surface_samples = 2000000: the light samples may "
+                                         r"need up to about 93\.9 GiB, 7\.8 GiB is available"):
+        check_memory("pbl", 512, 512, PblSettings(surface_samples=2_000_000), "s.toml", available=8 << 30)
