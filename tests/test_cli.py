@@ -194,6 +194,22 @@ def test_check_notes_a_medium_thicker_than_the_table(tmp_path):
     assert not json.loads(runner.invoke(app, ["check", str(write_scene(tmp_path, GOOD)), "--json"]).stdout)["notes"]
 
 
+def test_check_names_the_lights_a_path_tracer_cannot_bring_into_a_sealed_medium(tmp_path):
+    def notes(lights, **shape):
+        d = json.loads(runner.invoke(app, ["check", str(write_scene(tmp_path, {**_with_shape(**shape),
+                                                                               "lights": lights})), "--json"]).stdout)
+        return d["notes"]
+
+    point = {"type": "point", "position": [0, 5, 0], "intensity": 10.0}
+    small = {"type": "sphere", "center": [0, 20, 0], "radius": 0.5, "radiance": 50.0}  # 0.002 sr
+    large = {"type": "sphere", "center": [0, 4, 0], "radius": 1.5, "radiance": 5.0}  # 0.44 sr
+    n = notes([point, small, large])
+    assert len(n) == 2 and n[0].startswith("lights[0] (point) is a delta light") and "inside wax" in n[0]
+    assert n[1].startswith("lights[1] (sphere) subtends 0.002 sr from wax")
+    assert notes([point, small], interface="null") == []  # no refracting boundary: volpath's shadow rays reach them
+    assert notes([large]) == []
+
+
 def test_check_summarises_the_scene(tmp_path):
     path = write_scene(tmp_path, GOOD)
     r = runner.invoke(app, ["check", str(path)])

@@ -31,7 +31,8 @@ def describe(scene: C.Scene, path: Path) -> dict:
         st = mi.sigma_a + mi.sigma_s
         mfp = np.where(st > 0, 1.0 / np.maximum(st, 1e-300), np.inf)
         alb = np.where(st > 0, mi.sigma_s / np.maximum(st, 1e-300), 0.0)
-        obj = _medium_size(b, k)
+        box = _medium_box(b, k)
+        obj = float(np.linalg.norm(box[1] - box[0])) if box is not None else float("nan")
         across = obj / mfp
         out["media"].append({"label": mi.label, "albedo": alb.tolist(), "mean_free_path": mfp.tolist(),
                              "g": mi.material.g, "phase": mi.material.phase, "sealed": bool(b.media[k, MED_SEALED]),
@@ -40,9 +41,53 @@ def describe(scene: C.Scene, path: Path) -> dict:
             out["notes"].append(f"{mi.label}: {np.nanmax(across):.3g} mean free paths across, beyond the "
                                 f"multiple-scattering table's {2.0 * extent:g} ([render.lut] extent {extent:g}): pbl "
                                 "loses the light that diffuses farther (docs/pbl.md)")
-    if not any(L.type in ("sphere", "quad", "environment") for L in scene.lights):
-        out["notes"].append("only delta lights: volpath cannot reach them through a refracting boundary (pbl can)")
+    out["notes"] += _reach_notes(scene, b)
     return out
+
+
+SMALL_LIGHT_SR = 0.01  # a light subtending less than this from a sealed medium is found by volpath only by chance
+
+
+def _reach_notes(scene: C.Scene, b) -> list[str]:
+    """The lights a path tracer cannot bring into a sealed medium (behind refracting boundaries only, so no shadow
+    ray reaches a light from inside): delta lights, which volpath renders none of there, and small lights, which
+    its paths hit only by chance. pbl refracts the light in from the light's side, so it reaches both."""
+    notes = []
+    sealed = [k for k in range(len(b.medium_info)) if b.media[k, MED_SEALED]]
+    for i, L in enumerate(scene.lights):
+        if L.type in ("point", "directional"):
+            if sealed and np.max(getattr(L, "intensity", getattr(L, "irradiance", 0.0))) > 0:
+                names = ", ".join(b.medium_info[k].label for k in sealed)
+                notes.append(f"lights[{i}] ({L.type}) is a delta light: volpath renders none of its light inside "
+                             f"{names} (sealed behind a refracting boundary) nor its caustics; pbl does "
+                             "(--method pbl)")
+            continue
+        for k in sealed:
+            box = _medium_box(b, k)
+            omega = _solid_angle(L, 0.5 * (box[0] + box[1])) if box is not None else None
+            if omega is not None and omega < SMALL_LIGHT_SR:
+                notes.append(f"lights[{i}] ({L.type}) subtends {omega:.2g} sr from {b.medium_info[k].label}, which "
+                             "is sealed behind a refracting boundary: volpath's paths reach it only by chance "
+                             "(slow to converge); pbl is made for this (--method pbl)")
+    return notes
+
+
+def _solid_angle(light, point: np.ndarray) -> float | None:
+    """Solid angle (sr) a sphere or quad light subtends from point (a quad's: its projected area over the squared
+    distance, for a far light); None for the sky or a point inside the light."""
+    if light.type == "sphere":
+        d = float(np.linalg.norm(np.asarray(light.center) - point))
+        if d <= light.radius:
+            return None
+        return 2.0 * np.pi * (1.0 - np.sqrt(1.0 - (light.radius / d) ** 2))
+    if light.type == "quad":
+        e1, e2 = np.asarray(light.edge1, float), np.asarray(light.edge2, float)
+        centre = np.asarray(light.corner, float) + 0.5 * (e1 + e2)
+        to = point - centre
+        d2 = float(to @ to)
+        n = np.cross(e1, e2)
+        return None if d2 == 0 else min(2.0 * np.pi, abs(float(n @ to)) / d2 ** 1.5)
+    return None
 
 
 def summarize(scene: C.Scene, path: Path) -> str:
@@ -76,8 +121,8 @@ def _medium_label(ref) -> str | None:
     return ref if isinstance(ref, str) else (ref.name or "inline")
 
 
-def _medium_size(b, k: int) -> float:
-    """Diameter of the bounding box of the surfaces that bound medium k."""
+def _medium_box(b, k: int) -> np.ndarray | None:
+    """(lo, hi) corners of the bounding box of the surfaces that bound medium k (None: no surface found)."""
     surf = np.flatnonzero(b.surfaces_bounding(k))
     pts = []
     if len(b.faces):
@@ -88,9 +133,9 @@ def _medium_size(b, k: int) -> float:
         if int(s[SPH_SURFACE]) in surf:
             pts.append(sphere_bounds(s))
     if not pts:
-        return float("nan")
+        return None
     p = np.concatenate(pts)
-    return float(np.linalg.norm(p.max(0) - p.min(0)))
+    return np.array([p.min(0), p.max(0)])
 
 
 def _f(v) -> str:
