@@ -58,7 +58,12 @@ Num = Annotated[float, NoCoercion()]
 Int = Annotated[int, NoCoercion()]
 Bool = Annotated[bool, NoCoercion()]
 RGB = Annotated[tuple[Num, Num, Num], BeforeValidator(_rgb), _rgb_schema()]
-Vec3 = tuple[Num, Num, Num]
+
+# Geometry's numbers (positions, sizes, scale factors) within +-MAX_COORD: beyond it the single-precision geometry
+# the ray tracer holds has no precision left (and at 3e38 it overflows).
+MAX_COORD = 1e9
+Coord = Annotated[float, NoCoercion(), Field(ge=-MAX_COORD, le=MAX_COORD)]
+Vec3 = tuple[Coord, Coord, Coord]
 
 
 def _albedo(v):
@@ -70,6 +75,12 @@ def _albedo(v):
 def _positive_lengths(v):
     if not all(math.isfinite(x) and x > 0 for x in v):
         raise ValueError(f"expected positive lengths, got {list(v)}")
+    return v
+
+
+def _positive_sizes(v):
+    if not all(math.isfinite(x) and 0 < x <= MAX_COORD for x in v):
+        raise ValueError(f"expected positive sizes up to {MAX_COORD:g}, got {list(v)}")
     return v
 
 
@@ -88,6 +99,7 @@ def _eta(v):
 # Constrained types, one place per rule.
 Albedo = Annotated[RGB, AfterValidator(_albedo), _rgb_schema(minimum=0, maximum=1)]
 Lengths3 = Annotated[RGB, AfterValidator(_positive_lengths), _rgb_schema(exclusiveMinimum=0)]
+Sizes3 = Annotated[RGB, AfterValidator(_positive_sizes), _rgb_schema(exclusiveMinimum=0, maximum=MAX_COORD)]
 Coefficients = Annotated[RGB, AfterValidator(_non_negative), _rgb_schema(minimum=0)]
 Emission = Coefficients  # a light's radiance, intensity, irradiance or power: a negative one would subtract light
 Eta = Annotated[float, AfterValidator(_eta), WithJsonSchema({"type": "number", "exclusiveMinimum": 0})]
@@ -273,8 +285,9 @@ class Camera(Strict):
 class VolpathSettings(Strict):
     """The reference path tracer (`--method volpath`)."""
 
-    rr_depth: Int = Field(8, ge=0, description="bounce count from which Russian roulette applies")
-    batch_paths: Int = Field(1 << 19, ge=1024, description="paths traced per wavefront batch (memory vs. overhead)")
+    rr_depth: Int = Field(8, ge=0, le=MAX_DEPTH, description="bounce count from which Russian roulette applies")
+    batch_paths: Int = Field(1 << 19, ge=1024, le=1 << 24,
+                             description="paths traced per wavefront batch (memory vs. overhead)")
 
 
 class LutSettings(Strict):
@@ -282,9 +295,9 @@ class LutSettings(Strict):
 
     particles: Int | None = Field(None, ge=1000, description="particles simulated per table (default: as many as "
                                   "the collision budget allows)")
-    collision_budget: Int = Field(80_000_000, ge=100_000, description="collisions simulated per table when "
+    collision_budget: Int = Field(80_000_000, ge=100_000, le=10**12, description="collisions simulated per table when "
                                   "particles is not given")
-    seed: Int = Field(0, ge=0, description="the simulation's random seed")
+    seed: Int = Field(0, ge=0, le=MAX_SEED, description="the simulation's random seed")
     extent: Num = Field(40.0, gt=0, description="table half-size, mean free paths (light beyond it is lost)")
     sh_order: Int = Field(12, ge=2, le=24, description="spherical-harmonics order of the stored lobes")
     merge_tol: Num = Field(0.05, ge=0, description="relative difference of lobe shapes below which neighbouring "
@@ -295,15 +308,18 @@ class LutSettings(Strict):
 class PblSettings(Strict):
     """The point-based method: light samples and their use along camera rays (defaults: what the benchmark uses)."""
 
-    surface_samples: Int = Field(20000, ge=16, description="light surface samples (blue noise) on the outer layers "
+    surface_samples: Int = Field(20000, ge=16, le=10**8,
+                                 description="light surface samples (blue noise) on the outer layers "
                                  "of the medium-holding shapes, about")
-    segments_per_beam: Int = Field(16, ge=1, description="volume samples per beam and internal reflection")
-    max_internal_reflections: Int = Field(8, ge=0, description="internal reflections a beam is followed through")
-    max_layers: Int = Field(8, ge=1, description="transparent interfaces a beam may cross to reach the medium")
+    segments_per_beam: Int = Field(16, ge=1, le=1024, description="volume samples per beam and internal reflection")
+    max_internal_reflections: Int = Field(8, ge=0, le=64, description="internal reflections a beam is followed through")
+    max_layers: Int = Field(8, ge=1, le=64, description="transparent interfaces a beam may cross to reach the medium")
     beam_width: Num = Field(2.0, ge=0.5, description="single scattering's kernel radius over the beam's radius "
                               "(wider: less noise from the light samples, more blur)")
-    kmax: Int = Field(4, ge=1, description="points per camera-ray segment in a medium for single scattering (eq. 9)")
-    kmax_scattered: Int = Field(1, ge=1, description="points per segment for double and multiple (smooth along rays)")
+    kmax: Int = Field(4, ge=1, le=64,
+                      description="points per camera-ray segment in a medium for single scattering (eq. 9)")
+    kmax_scattered: Int = Field(1, ge=1, le=64,
+                                description="points per segment for double and multiple (smooth along rays)")
     cache_cell: Num = Field(0.5, ge=0, description="double, multiple and bounced light are evaluated once per "
                             "cell and direction bin, at a random camera point of it, and shared by the others (a blur "
                             "of about a cell): the cells' depth below the boundary, mean free paths of the densest "
@@ -313,15 +329,16 @@ class PblSettings(Strict):
                                "where the terms change fastest)")
     cache_directions: Int = Field(8, ge=1, le=64, description="direction bins per cube-map face for cache_cell "
                                   "(8: about 11 degrees wide)")
-    cut_size: Int = Field(8, ge=0, description="octree refinements per point for double and multiple scattering "
+    cut_size: Int = Field(8, ge=0, le=64, description="octree refinements per point for double and multiple scattering "
                           "(stochastic light cut: more = less noise, more time)")
     clamp: Num = Field(0.02, ge=0, description="smallest radius a source's 1/r^2 is averaged over (double "
                          "scattering), scene units")
-    max_split_depth: Int = Field(8, ge=1, description="surfaces a camera path meets before it ends (it splits in "
+    max_split_depth: Int = Field(8, ge=1, le=32,
+                                 description="surfaces a camera path meets before it ends (it splits in "
                                  "two at every smooth interface)")
-    diffuse_bounces: Int = Field(3, ge=0, description="diffuse bounces of camera paths (indirect light)")
-    kmax_diffuse: Int = Field(1, ge=1, description="random points per medium segment after a diffuse bounce")
-    light_sets: Int = Field(0, ge=0, description="independent light-sample sets the spp passes cycle through "
+    diffuse_bounces: Int = Field(3, ge=0, le=64, description="diffuse bounces of camera paths (indirect light)")
+    kmax_diffuse: Int = Field(1, ge=1, le=64, description="random points per medium segment after a diffuse bounce")
+    light_sets: Int = Field(0, ge=0, le=4096, description="independent light-sample sets the spp passes cycle through "
                             "(0: a new set every pass; 1: the cached set only)")
     roulette: Num = Field(0.1, ge=0, description="camera branches of weight below this evaluate the medium "
                             "with probability weight / roulette (0: always)")
@@ -329,9 +346,10 @@ class PblSettings(Strict):
                                "traced, cheap) take them all, the medium one of them chosen at random (weighted: "
                                "unbiased); 0: auto, 8 for the first two passes, then per pass from the surfaces' and "
                                "the medium's measured noise")
-    bounce_samples: Int = Field(1000, ge=16, description="boundary points gathering the scattered light that the "
+    bounce_samples: Int = Field(1000, ge=16, le=10**7,
+                                description="boundary points gathering the scattered light that the "
                                 "medium's boundary reflects back (sec. 3.10, the bounced layer)")
-    bounce_generations: Int = Field(3, ge=0, description="reflections of scattered light followed (0: none)")
+    bounce_generations: Int = Field(3, ge=0, le=64, description="reflections of scattered light followed (0: none)")
     components: tuple[Literal["single", "double", "multiple", "bounced"], ...] = Field(
         ("single", "double", "multiple", "bounced"), description="the medium's terms rendered (each is a layer of the "
         "EXR; the command line's --components overrides)")
@@ -391,7 +409,7 @@ class SphereLight(Strict):
 
     type: Literal["sphere"]
     center: Vec3 = Field(description="scene units")
-    radius: Num = Field(gt=0, description="scene units")
+    radius: Num = Field(gt=0, le=MAX_COORD, description="scene units")
     radiance: Emission | None = Field(None, description="emitted radiance, W sr^-1 per scene unit^2")
     power: Emission | None = Field(None, description="total emitted flux, W (radiance = power / (pi x 4 pi radius^2))")
 
@@ -462,15 +480,8 @@ class Transform(Strict):
 
     translate: Vec3 = Field((0.0, 0.0, 0.0), description="scene units")
     rotate: Vec3 = Field((0.0, 0.0, 0.0), description="Euler angles about x, y, z, degrees")
-    scale: RGB = Field((1.0, 1.0, 1.0), description="one factor or one per axis [x, y, z], positive (a sphere "
-                       "takes one)")
-
-    @field_validator("scale")
-    @classmethod
-    def _scale(cls, v):
-        if not all(math.isfinite(s) and s > 0 for s in v):
-            raise ValueError(f"expected positive scale factors, got {list(v)}")
-        return v
+    scale: Sizes3 = Field((1.0, 1.0, 1.0), description="one factor or one per axis [x, y, z], positive (a sphere "
+                          "takes one)")
 
     def matrix(self) -> np.ndarray:
         """4x4 homogeneous matrix."""
@@ -508,7 +519,7 @@ class SphereShape(ShapeBase):
 
     type: Literal["sphere"]
     center: Vec3 = Field((0.0, 0.0, 0.0), description="scene units")
-    radius: Num = Field(1.0, gt=0, description="scene units")
+    radius: Num = Field(1.0, gt=0, le=MAX_COORD, description="scene units")
 
 
 class BumpySphereShape(ShapeBase):
@@ -516,10 +527,10 @@ class BumpySphereShape(ShapeBase):
 
     type: Literal["bumpy_sphere"]
     center: Vec3 = Field((0.0, 0.0, 0.0), description="scene units")
-    radius: Num = Field(1.0, gt=0, description="scene units")
+    radius: Num = Field(1.0, gt=0, le=MAX_COORD, description="scene units")
     amplitude: Num = Field(0.1, ge=0, lt=1, description="relative height of the bumps")
     frequency: Num = Field(3.0, gt=0, description="bumps' spatial frequency over the sphere")
-    seed: Int = Field(0, ge=0, description="the noise's random seed")
+    seed: Int = Field(0, ge=0, le=MAX_SEED, description="the noise's random seed")
     subdivisions: Int = Field(6, ge=1, le=8, description="icosphere subdivisions (20 x 4^n triangles)")
 
 
@@ -528,7 +539,7 @@ class BoxShape(ShapeBase):
 
     type: Literal["box"]
     center: Vec3 = Field((0.0, 0.0, 0.0), description="scene units")
-    size: Lengths3 = Field((1.0, 1.0, 1.0), description="edge lengths [x, y, z] (or one for a cube), scene units")
+    size: Sizes3 = Field((1.0, 1.0, 1.0), description="edge lengths [x, y, z] (or one for a cube), scene units")
 
 
 class CylinderShape(ShapeBase):
@@ -536,9 +547,9 @@ class CylinderShape(ShapeBase):
 
     type: Literal["cylinder"]
     center: Vec3 = Field((0.0, 0.0, 0.0), description="centre of the base, scene units")
-    radius: Num = Field(1.0, gt=0, description="scene units")
-    height: Num = Field(1.0, gt=0, description="scene units")
-    segments: Int = Field(256, ge=8, description="facets around (smooth normals interpolated)")
+    radius: Num = Field(1.0, gt=0, le=MAX_COORD, description="scene units")
+    height: Num = Field(1.0, gt=0, le=MAX_COORD, description="scene units")
+    segments: Int = Field(256, ge=8, le=65536, description="facets around (smooth normals interpolated)")
 
 
 class QuadShape(ShapeBase):
@@ -546,7 +557,7 @@ class QuadShape(ShapeBase):
 
     type: Literal["quad"]
     center: Vec3 = Field((0.0, 0.0, 0.0), description="scene units")
-    size: Annotated[tuple[Num, Num], AfterValidator(_positive_lengths)] = Field(
+    size: Annotated[tuple[Num, Num], AfterValidator(_positive_sizes)] = Field(
         (1.0, 1.0), description="[x, z] side lengths, scene units")
 
 
@@ -560,15 +571,15 @@ class CupShape(ShapeBase):
 
     type: Literal["cup"]
     center: Vec3 = Field((0.0, 0.0, 0.0), description="centre of the base, scene units")
-    radius: Num = Field(1.0, gt=0, description="outer radius, scene units")
-    height: Num = Field(2.0, gt=0, description="scene units")
-    wall: Num = Field(0.1, gt=0, description="wall thickness, scene units")
-    bottom: Num = Field(0.2, gt=0, description="bottom thickness, scene units")
+    radius: Num = Field(1.0, gt=0, le=MAX_COORD, description="outer radius, scene units")
+    height: Num = Field(2.0, gt=0, le=MAX_COORD, description="scene units")
+    wall: Num = Field(0.1, gt=0, le=MAX_COORD, description="wall thickness, scene units")
+    bottom: Num = Field(0.2, gt=0, le=MAX_COORD, description="bottom thickness, scene units")
     fill: Num = Field(0.0, ge=0, le=1, description="liquid level as a fraction of the inner height")
     liquid: MediumRef | None = Field(None, description="the liquid's medium (as `medium`); needed when fill > 0")
     liquid_eta: Eta | None = Field(None, description="the liquid's refractive index (default: its medium's eta, "
                                    "else 1.33)")
-    segments: Int = Field(256, ge=8, description="facets around (smooth normals interpolated)")
+    segments: Int = Field(256, ge=8, le=65536, description="facets around (smooth normals interpolated)")
 
     @model_validator(mode="after")
     def _dims(self):

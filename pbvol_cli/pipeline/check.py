@@ -37,8 +37,9 @@ def describe(scene: C.Scene, path: Path) -> dict:
         out["media"].append({"label": mi.label, "albedo": alb.tolist(), "mean_free_path": mfp.tolist(),
                              "g": mi.material.g, "phase": mi.material.phase, "sealed": bool(b.media[k, MED_SEALED]),
                              "object_size": obj, "mean_free_paths_across": across.tolist()})
-        if np.nanmax(across) > 2.0 * extent:
-            out["notes"].append(f"{mi.label}: {np.nanmax(across):.3g} mean free paths across, beyond the "
+        thickest = float(np.max(across, where=np.isfinite(across), initial=0.0))
+        if thickest > 2.0 * extent:
+            out["notes"].append(f"{mi.label}: {thickest:.3g} mean free paths across, beyond the "
                                 f"multiple-scattering table's {2.0 * extent:g} ([render.lut] extent {extent:g}): pbl "
                                 "loses the light that diffuses farther (docs/pbl.md)")
     out["notes"] += _reach_notes(scene, b)
