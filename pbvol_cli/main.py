@@ -208,6 +208,9 @@ def compare(
     metric: Annotated[str, typer.Option(help="what --fail-above bounds: mse, or rel-mse (the relative MSE, "
                                         "(a - b)^2 / (b^2 + 0.01), which weighs dark and bright pixels alike)")]
     = "mse",
+
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print nothing: the exit status says whether "
+                                        "--fail-above passed")] = False,
 ):
     """MSE, relative MSE and PSNR of IMAGE against REFERENCE, overall and per channel."""
     from pbvol_cli.imageio import read_exr
@@ -230,7 +233,8 @@ def compare(
             error_image_png(a, b, diff)
     except PbvolError as e:
         _fail(e)
-    typer.echo(json.dumps(m, allow_nan=False) if as_json else format_report(m, str(image), str(reference)))
+    if not quiet:
+        typer.echo(json.dumps(m, allow_nan=False) if as_json else format_report(m, str(image), str(reference)))
     value = m[GATED_METRICS[metric]]
     if fail_above is not None and value > fail_above:
         typer.echo(f"FAIL: {metric} {value:.6g} exceeds {fail_above:g}", err=True)
@@ -238,7 +242,7 @@ def compare(
 
 
 @app.command()
-def materials():
+def materials(quiet: Annotated[bool, typer.Option("--quiet", "-q", help="the names only")] = False):
     """List the material presets with their parameters and sources."""
     from pbvol_cli.config import load_material, materials_dir, preset_names
 
@@ -247,6 +251,9 @@ def materials():
         if not names:
             raise PbvolError(f"no material presets found in {materials_dir()}")
         for name in names:
+            if quiet:
+                typer.echo(name)
+                continue
             m = load_material(materials_dir() / f"{name}.toml")
             sa, ss = m.coefficients(m.length_unit)
             st = sa + ss
@@ -266,14 +273,20 @@ def _fmt3(v) -> str:
 
 
 @app.command()
-def check(scene: SceneArg, as_json: JsonOpt = False):
+def check(scene: SceneArg, as_json: JsonOpt = False,
+          quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print only the notes (the exit status "
+                                              "says whether the scene is valid)")] = False):
     """Validate SCENE and summarise it: shapes, triangles, lights, media, mean free paths vs object size."""
     from pbvol_cli import config as C
     from pbvol_cli.pipeline.check import describe, summarize
 
     try:
         sc = C.load_scene(scene)
-        typer.echo(json.dumps(describe(sc, scene)) if as_json else summarize(sc, scene))
+        if quiet and not as_json:
+            for note in describe(sc, scene)["notes"]:
+                typer.echo(f"note: {note}")
+        else:
+            typer.echo(json.dumps(describe(sc, scene)) if as_json else summarize(sc, scene))
     except PbvolError as e:
         _fail(e)
 
@@ -283,6 +296,9 @@ def schema(
     kind: Annotated[str, typer.Argument(help="scene or material")] = "scene",
     markdown: Annotated[bool, typer.Option("--markdown", help="print the field reference (docs/scene-format.md) "
                                            "instead")] = False,
+
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="accepted like every command's (schema shows no "
+                                        "progress)")] = False,
 ):
     """Print the JSON Schema of a scene file or a material file (every field, with its type, unit and default)."""
     from pbvol_cli.config_reference import SCHEMAS, json_schema, markdown_reference

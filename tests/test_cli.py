@@ -174,6 +174,29 @@ def test_no_timings_gives_byte_identical_files(tmp_path):
         assert "time_s" not in meta and not any(k.startswith("stage_") for k in meta) and meta["seed"] == 0
 
 
+def test_every_command_takes_quiet(tmp_path):
+    from pbvol_cli.main import app as main_app
+
+    path = write_scene(tmp_path, {**GOOD, "render": {"spp": 1, "pbl": {"surface_samples": 200,
+                                                                         "segments_per_beam": 2}}})
+    write_exr(tmp_path / "a.exr", np.zeros((2, 2, 3), np.float32))
+    mat = tmp_path / "m.toml"
+    mat.write_text('albedo = 0.9\nmean_free_path = 1.0\n')
+    cache = ["--cache-dir", str(tmp_path / "cache")]
+    runs = {"render": ["render", str(path), "-o", str(tmp_path / "x.exr")],
+            "compare": ["compare", str(tmp_path / "a.exr"), str(tmp_path / "a.exr")],
+            "precompute-lut": ["precompute-lut", str(mat), "--particles", "2000", *cache],
+            "place-samples": ["place-samples", str(path), *cache],
+            "check": ["check", str(path)], "materials": ["materials"], "schema": ["schema"]}
+    assert set(runs) == {c.name or c.callback.__name__ for c in main_app.registered_commands}
+    for name, args in runs.items():
+        r = runner.invoke(app, [*args, "-q"])
+        assert r.exit_code == 0, (name, r.output)
+        assert "\r" not in r.stderr and r.stderr == "", (name, r.stderr)  # no progress
+    assert runner.invoke(app, [*runs["compare"], "-q"]).stdout == ""
+    assert runner.invoke(app, ["materials", "-q"]).stdout.split()[:2] == ["apple", "bumpy_sphere"]
+
+
 def test_json_summaries_for_scripts(tmp_path):
     path = write_scene(tmp_path, GOOD)
     c = runner.invoke(app, ["check", str(path), "--json"])
