@@ -154,36 +154,30 @@ def test_the_base_documents_are_valid(folder):
 CASES = {"default": 150, "slow": 3400}  # per kind of file; three kinds: slow generates more than 10,000 files
 
 
-def _scene_files(folder, case):
+def _documents(folder, case, base, name, scene):
+    """Damaged copies of base written as folder/name, each checked through the scene file `scene`."""
     @settings(max_examples=CASES[case], deadline=None, derandomize=True, database=None,
               suppress_health_check=list(HealthCheck))
-    @given(damaged(SCENE))
+    @given(damaged(base))
     def run(damage):
         doc, must_fail = damage
         data = _dump(doc)
         if data is not None:
-            status = _check(folder, "scene.toml", data)
+            status = _check(folder, name, data, scene=scene)
             assert status == 1 or not must_fail, doc
 
     run()
+
+
+def _scene_files(folder, case):
+    _documents(folder, case, SCENE, "scene.toml", "scene.toml")
 
 
 def _material_files(folder, case):
     (folder / "uses_material.toml").write_bytes(tomli_w.dumps(
         {**SCENE, "lights": SCENE["lights"][-1:],
          "shapes": [{**SCENE["shapes"][0], "medium": "damaged_material.toml"}]}).encode())
-
-    @settings(max_examples=CASES[case], deadline=None, derandomize=True, database=None,
-              suppress_health_check=list(HealthCheck))
-    @given(damaged(MATERIAL))
-    def run(damage):
-        doc, must_fail = damage
-        data = _dump(doc)
-        if data is not None:
-            status = _check(folder, "damaged_material.toml", data, scene="uses_material.toml")
-            assert status == 1 or not must_fail, doc
-
-    run()
+    _documents(folder, case, MATERIAL, "damaged_material.toml", "uses_material.toml")
 
 
 def _raw_files(folder, case):
