@@ -129,19 +129,35 @@ def _aggregate(order, start, end, first_child, n_children, n_nodes, pts, box_lo,
 
 def build_octree(points, box_lo, box_hi, dirs, power, leaf_size: int = LEAF_SIZE) -> Octree:
     """Octree over samples at `points` with bounding boxes [box_lo, box_hi], unit directions and RGB power."""
+    return aggregate_octree(octree_skeleton(points, leaf_size), points, box_lo, box_hi, dirs, power)
+
+
+def octree_skeleton(points, leaf_size: int = LEAF_SIZE) -> Octree:
+    """The octree's structure over `points` (order, children, ranges); its per-node boxes and sums are left empty
+    for aggregate_octree (which may take the samples already in the tree's order)."""
     n = len(points)
     cap = 4 * n + 1024  # ample: a node that would overflow it stays a leaf
     order = np.arange(n, dtype=np.int64)
     start, end = np.zeros(cap, np.int64), np.zeros(cap, np.int64)
     fc, nc = np.full(cap, -1, np.int64), np.zeros(cap, np.int64)
-    pts = np.ascontiguousarray(points, np.float64)
-    m = _build(pts, order, start, end, fc, nc, leaf_size) if n else 0
+    m = _build(np.ascontiguousarray(points, np.float64), order, start, end, fc, nc, leaf_size) if n else 0
+    empty = np.zeros((0, 3))
+    return Octree(order, empty, empty, empty, empty, empty, fc[:m].copy(), nc[:m].copy(), start[:m].copy(),
+                  end[:m].copy())
+
+
+def aggregate_octree(skeleton: Octree, points, box_lo, box_hi, dirs, power) -> Octree:
+    """The skeleton's nodes filled: boxes, power-weighted centroids and direction sums, power sums. The samples'
+    arrays are indexed through skeleton.order (an identity order: they are stored in the tree's order)."""
+    m = len(skeleton.start)
     lo, hi = np.zeros((m, 3)), np.zeros((m, 3))
     centre, dirsum, pw = np.zeros((m, 3)), np.zeros((m, 3)), np.zeros((m, 3))
     if m:
-        _aggregate(order, start, end, fc, nc, m, pts, np.asarray(box_lo, float), np.asarray(box_hi, float),
+        _aggregate(skeleton.order, skeleton.start, skeleton.end, skeleton.first_child, skeleton.n_children, m,
+                   np.ascontiguousarray(points, np.float64), np.asarray(box_lo, float), np.asarray(box_hi, float),
                    np.asarray(dirs, float), np.asarray(power, float), lo, hi, centre, dirsum, pw)
-    return Octree(order, lo, hi, centre, dirsum, pw, fc[:m].copy(), nc[:m].copy(), start[:m].copy(), end[:m].copy())
+    return Octree(skeleton.order, lo, hi, centre, dirsum, pw, skeleton.first_child, skeleton.n_children,
+                  skeleton.start, skeleton.end)
 
 
 @njit(inline="always", cache=True)

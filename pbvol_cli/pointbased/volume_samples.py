@@ -17,10 +17,10 @@ from collections import namedtuple
 from types import SimpleNamespace
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from pbvol_cli.geometry.scene_build import MED_G, MED_PHASE, MED_SIGMA_A, MED_SIGMA_S
-from pbvol_cli.pointbased.octree import Octree, build_octree
+from pbvol_cli.pointbased.octree import aggregate_octree, octree_skeleton
 
 END_EXTENSION = 3.0  # kernel radii by which segments on the boundary are continued (single scattering)
 
@@ -67,15 +67,17 @@ def medium_params(media: np.ndarray, m: int) -> Medium:
                   float(row[MED_G]))
 
 
-def near_field_radius(start, dirs, length, rb) -> float:
+def near_field_radius(start, dirs, length, rb, ends_box=None) -> float:
     """Radius R of double scattering's exactly summed near field (light_cut.double_multiple): NEAR_FIELD_RADII
     median beam radii, smaller where the segments are so dense that more than NEAR_FIELD_COUNT would pass within R
     of a point (segments per volume n, median length l: n (pi R^2 l + 4/3 pi R^3), the volume within R of a
-    segment; the volume is the samples' bounding box, an over-estimate)."""
+    segment; the volume is the samples' bounding box, an over-estimate; ends_box: that box, if known)."""
     if len(length) == 0:
         return 0.0
-    ends = np.concatenate([start, start + length[:, None] * dirs])
-    volume = float(np.prod(np.maximum(ends.max(axis=0) - ends.min(axis=0), 1e-9)))
+    if ends_box is None:  # (lo, hi) of the segments' ends, when the caller has not found it already
+        ends = np.concatenate([start, start + length[:, None] * dirs])
+        ends_box = ends.min(axis=0), ends.max(axis=0)
+    volume = float(np.prod(np.maximum(ends_box[1] - ends_box[0], 1e-9)))
     n, ell = len(length) / volume, float(np.median(length))
     roots = np.roots([4.0 / 3.0 * np.pi * n, np.pi * n * ell, 0.0, -NEAR_FIELD_COUNT])
     r_count = float(max(r.real for r in roots if abs(r.imag) < 1e-9 * max(1.0, abs(r)) and r.real > 0))
@@ -92,6 +94,61 @@ def returned_samples(samples, medium: int, area_scale: float = 1.0) -> SimpleNam
     return out
 
 
+@njit(cache=True)
+def _octree_inputs(idx, start, dirs, length):
+    """For the selected samples idx, in one pass: their segments' centres (the octree's points) and the bounding box
+    (lo, hi) of their segments' ends (near_field_radius's)."""
+    n = idx.shape[0]
+    centre = np.empty((n, 3))
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for k in range(n):
+        i = idx[k]
+        for c in range(3):
+            a, b = start[i, c], start[i, c] + length[i] * dirs[i, c]
+            centre[k, c] = start[i, c] + 0.5 * length[i] * dirs[i, c]
+            lo[c] = min(lo[c], min(a, b))
+            hi[c] = max(hi[c], max(a, b))
+    return centre, lo, hi
+
+
+@njit(cache=True, parallel=True)
+def _in_tree_order(idx, order, start, dirs, length, power, area, ends, plane, centre, beam_width, sigma_t, albedo):
+    """The selected samples gathered in the octree's order (sample order[k] of the selection, idx[order[k]] of the
+    set), with what the kernels derive from them: the kernel disc's area, the beam's radius, the scattered power
+    Phi^s, and the box that holds the kernel disc along the segment (continued by END_EXTENSION kernel radii where
+    the segment touches the boundary)."""
+    n = order.shape[0]
+    o_start, o_dir, o_power = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+    o_centre, o_scat, o_lo, o_hi = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+    o_len, o_area, o_rb = np.empty(n), np.empty(n), np.empty(n)
+    o_ends = np.empty(n, ends.dtype)
+    o_plane = np.empty((n, plane.shape[1]))
+    for k in prange(n):  # each sample writes its own rows: the same result for any thread count
+        j = order[k]
+        i = idx[j]
+        o_len[k] = length[i]
+        o_area[k] = area[i] * beam_width ** 2
+        rb = np.sqrt(o_area[k] / np.pi)  # the kernel's radius: the box must hold it
+        o_rb[k] = rb / beam_width
+        o_ends[k] = ends[i]
+        ext = END_EXTENSION * rb
+        back = ext if ends[i] & 1 else 0.0
+        ahead = length[i] + (ext if ends[i] & 2 else 0.0)
+        for c in range(3):
+            o_start[k, c] = start[i, c]
+            o_dir[k, c] = dirs[i, c]
+            o_power[k, c] = power[i, c]
+            o_centre[k, c] = centre[j, c]
+            o_scat[k, c] = power[i, c] * albedo[c] * -np.expm1(-sigma_t[c] * length[i])
+            first = start[i, c] - back * dirs[i, c]
+            last = start[i, c] + ahead * dirs[i, c]
+            o_lo[k, c] = min(first, last) - rb
+            o_hi[k, c] = max(first, last) + rb
+        for c in range(plane.shape[1]):
+            o_plane[k, c] = plane[i, c]
+    return o_start, o_dir, o_len, o_power, o_area, o_centre, o_scat, o_rb, o_ends, o_plane, o_lo, o_hi
+
+
 class SampleSet:
     """One medium's volume samples prepared for the kernels (see the module docstring); .kernel is the bundle."""
 
@@ -103,35 +160,25 @@ class SampleSet:
         returned = getattr(samples, "v_returned", None)
         if returned is not None:
             sel &= returned == 0
+        idx = np.flatnonzero(sel)
         self.medium = medium_params(media, medium)
-        start = np.ascontiguousarray(samples.v_start[sel])
-        dirs = np.ascontiguousarray(samples.v_dir[sel])
-        length = np.ascontiguousarray(samples.v_len[sel])
-        power = np.ascontiguousarray(samples.v_power[sel])
-        area = np.ascontiguousarray(samples.v_area[sel]) * beam_width ** 2
         st = self.medium.sigma_a + self.medium.sigma_s
-        safe = np.where(st > 0, st, 1.0)
-        absorbed = -np.expm1(-st[None, :] * length[:, None])
-        self.scat = power * np.where(st > 0, self.medium.sigma_s / safe, 0.0)[None, :] * absorbed
-        centre = start + 0.5 * length[:, None] * dirs
-        rb = np.sqrt(area / np.pi)  # the kernel's radius: the boxes must hold it
-        ends = np.ascontiguousarray(samples.v_ends[sel])
-        plane = np.ascontiguousarray(samples.v_plane[sel])
-        ext = END_EXTENSION * rb
-        first = start - (ext * (ends & 1 > 0))[:, None] * dirs
-        end = start + (length + ext * (ends & 2 > 0))[:, None] * dirs
-        box_lo = np.minimum(first, end) - rb[:, None]
-        box_hi = np.maximum(first, end) + rb[:, None]
-        tree = build_octree(centre, box_lo, box_hi, dirs, self.scat)
-        beam_radius = rb / beam_width
-        self.count = int(sel.sum())
-        r_near = near_field_radius(start, dirs, length, beam_radius)
+        albedo = np.where(st > 0, self.medium.sigma_s / np.where(st > 0, st, 1.0), 0.0)
+        arrays = [np.ascontiguousarray(a) for a in (samples.v_start, samples.v_dir, samples.v_len,
+                                                     samples.v_power, samples.v_area, samples.v_ends)]
+        centre, lo, hi = _octree_inputs(idx, *arrays[:3])
+        skeleton = octree_skeleton(centre)
         # the samples stored in the tree's order: a leaf's samples are then contiguous in memory, and the kernels'
         # leaf scans (i = order[k], now k) read them in sequence instead of at random (the same sums, faster)
-        o = tree.order
-        tree = Octree(np.arange(len(o), dtype=np.int64), *tree.arrays()[1:])
-        self.kernel = VolumeSamples(tree.arrays(), start[o], dirs[o], length[o], power[o], area[o], centre[o],
-                                    self.scat[o], beam_radius[o], ends[o], plane[o], tuple(tables), r_near)
+        start, dirs, length, power, area, centre, self.scat, beam_radius, ends, plane, box_lo, box_hi = \
+            _in_tree_order(idx, skeleton.order, *arrays, np.ascontiguousarray(samples.v_plane), centre,
+                           float(beam_width), st, albedo)
+        skeleton.order = np.arange(len(idx), dtype=np.int64)
+        tree = aggregate_octree(skeleton, centre, box_lo, box_hi, dirs, self.scat)
+        self.count = len(idx)
+        r_near = near_field_radius(start, dirs, length, beam_radius, (lo, hi))
+        self.kernel = VolumeSamples(tree.arrays(), start, dirs, length, power, area, centre, self.scat, beam_radius,
+                                    ends, plane, tuple(tables), r_near)
 
 
 def scattered_share(base: SampleSet, other: SampleSet) -> float:
