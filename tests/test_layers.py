@@ -7,7 +7,7 @@ from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "pbvol_cli"
 LAYERS = [
-    {"__version__", "errors"},
+    {"__version__", "errors", "jit"},
     {"config", "config_reference", "imageio"},
     {"physics"},
     {"geometry"},

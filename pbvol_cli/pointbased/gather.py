@@ -110,11 +110,11 @@ def eval_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, setti
 
 def _on_threads(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes):
     if threads <= 1 or len(idx) < 64:
-        _eval_segments(idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes)
+        _eval_segments(np.ascontiguousarray(idx), pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes)
         return
-    # interleaved slices balance rays of different cost
-    list(pool.map(lambda j: _eval_segments(idx[j::threads], pos, dirs, beta, tseg, rng, med, vs, settings, out,
-                                           diffuse, planes), range(threads)))
+    # interleaved slices balance rays of different cost (copied: one array layout, one compiled kernel)
+    list(pool.map(lambda j: _eval_segments(np.ascontiguousarray(idx[j::threads]), pos, dirs, beta, tseg, rng, med,
+                                           vs, settings, out, diffuse, planes), range(threads)))
 
 
 def segment_planes(pos, dirs, t, n_start, n_end):

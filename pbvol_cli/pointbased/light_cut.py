@@ -18,6 +18,7 @@ import math
 import numpy as np
 from numba import njit
 
+from pbvol_cli.jit import as_runtime
 from pbvol_cli.physics.phase import INV_4PI, phase_eval
 from pbvol_cli.physics.sampling import rand
 from pbvol_cli.pointbased.octree import LEAF_WALK_STACK, next_leaf
@@ -237,7 +238,7 @@ def _near_field(vs, med, q, rclamp, out_d, out_m):
             if rx * rx + ry * ry + rz * rz >= R * R:
                 continue
             n += 1
-            sample_terms(i, vs, med, q, rclamp, True, False, R, out_d, out_m)
+            sample_terms(i, vs, med, q, rclamp, as_runtime(True), as_runtime(False), R, out_d, out_m)
     return n
 
 
@@ -272,7 +273,8 @@ def double_multiple(vs, med, q, cut_size, rclamp, do_double, do_multiple, out_d,
         n_eval += _near_field(vs, med, q, rclamp, out_d, out_m)
     while hn > 0:
         if ms_pending and n_refined >= ms_cut:
-            n_eval += _cut_estimate(heap, hn, node_of, vs, med, q, rclamp, False, True, out_d, out_m, rng, ri, 0.0)
+            n_eval += _cut_estimate(heap, hn, node_of, vs, med, q, rclamp, as_runtime(False), as_runtime(True),
+                                    out_d, out_m, rng, ri, 0.0)
             ms_pending = False
         if n_refined >= cut_size or not (do_double or ms_pending):
             break

@@ -16,6 +16,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
+from pbvol_cli.jit import as_runtime
 from pbvol_cli.multiple_scattering.table import scaled_lookup
 from pbvol_cli.physics.phase import phase_eval
 from pbvol_cli.pointbased.inverse_square import attenuated_inv_r2_ball
@@ -129,6 +130,7 @@ def sample_terms(i, vs, med, q, rclamp, do_double, do_multiple, split, out_d, ou
     far = cx * cx + cy * cy + cz * cz > 4.0 * ln * ln
     st_max = max(sig_a[0] + sig_s[0], max(sig_a[1] + sig_s[1], sig_a[2] + sig_s[2]))
     n_ms = min(NEAR_SUB, int(math.ceil(st_max * ln / MS_CELL))) if do_multiple else 0
+    YES, NO = as_runtime(True), as_runtime(False)  # one compiled source_terms and split_terms for all calls
     if far or not do_double:
         dd = do_double and far  # (an expression among so many arguments trips numba's bytecode analysis)
         whole = Source(v_centre[i, 0], v_centre[i, 1], v_centre[i, 2], v_dir[i, 0], v_dir[i, 1], v_dir[i, 2],
@@ -137,16 +139,17 @@ def sample_terms(i, vs, med, q, rclamp, do_double, do_multiple, split, out_d, ou
             source_terms(whole, vs.plane[i], med, q, rclamp, dd, do_multiple, vs.tables, split, out_d, out_m)
             return
         if far and do_double:
-            source_terms(whole, vs.plane[i], med, q, rclamp, True, False, vs.tables, split, out_d, out_m)
-        split_terms(i, n_ms, vs, med, q, rclamp, False, True, split, out_d, out_m)
+            source_terms(whole, vs.plane[i], med, q, rclamp, YES, NO, vs.tables, split, out_d, out_m)
+        split_terms(i, n_ms, vs, med, q, rclamp, NO, YES, split, out_d, out_m)
         return
     # near, double wanted
+    n_near = as_runtime(NEAR_SUB)
     if n_ms == NEAR_SUB:
-        split_terms(i, NEAR_SUB, vs, med, q, rclamp, True, do_multiple, split, out_d, out_m)
+        split_terms(i, n_near, vs, med, q, rclamp, YES, do_multiple, split, out_d, out_m)
         return
-    split_terms(i, NEAR_SUB, vs, med, q, rclamp, True, False, split, out_d, out_m)
+    split_terms(i, n_near, vs, med, q, rclamp, YES, NO, split, out_d, out_m)
     if n_ms > 0:
-        split_terms(i, n_ms, vs, med, q, rclamp, False, True, split, out_d, out_m)
+        split_terms(i, n_ms, vs, med, q, rclamp, NO, YES, split, out_d, out_m)
 
 
 @njit(cache=True)
