@@ -152,7 +152,8 @@ def _segments(media, surfaces, beams, hits, out, eps, nseg, p_min, R2, seed, leg
     """For each live beam k (Beams) and its hit (BeamHits): nseg volume samples into out (SegmentArrays, slots
     k * nseg ...), then its internal reflection (_segment_beam)."""
     for k in prange(beams.pos.shape[0]):
-        _segment_beam(k, media, surfaces, beams, hits, out, eps, nseg, p_min, R2, seed, leg, alive)
+        # (k cast: prange's index is uint64 in parallel code, int64 in the serial typing: two compiled copies)
+        _segment_beam(np.int64(k), media, surfaces, beams, hits, out, eps, nseg, p_min, R2, seed, leg, alive)
 
 
 @njit(cache=True)

@@ -50,11 +50,12 @@ PathLimits = namedtuple("PathLimits", ["eps", "max_split_depth", "max_diffuse"])
 
 
 # Numba pitfall: arrays unpacked from a tuple inside a parallel function lose their writes in prange (numba
-# 0.68). The parallel kernel therefore only loops and calls an inner function that takes the tuples.
+# 0.68). The parallel kernel therefore only loops and calls an inner function that takes the tuples. Its index is
+# cast to int64: prange's is uint64 in the parallel code and int64 in the serial typing, two compiled copies.
 @njit(parallel=True, cache=True)
 def _interact(surfaces, lights, rays, hits, limits, emit, children, shadows):
     for i in prange(rays.pos.shape[0]):
-        _interact_one(i, surfaces, lights, rays, hits, limits, emit, children, shadows)
+        _interact_one(np.int64(i), surfaces, lights, rays, hits, limits, emit, children, shadows)
 
 
 @njit(cache=True)

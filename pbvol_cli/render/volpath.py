@@ -36,6 +36,7 @@ from pbvol_cli.geometry.raycast import TriangleCaster
 from pbvol_cli.geometry.scene_build import (DIELECTRIC, MED_G, MED_PHASE, MED_SEALED, MED_SIGMA_A, MED_SIGMA_S,
                                            MIRROR, NULL, SPH_CENTER, SPH_RADIUS, SPH_SURFACE, SURF_ALBEDO, SURF_TYPE,
                                            BuiltScene)
+from pbvol_cli.jit import as_runtime
 from pbvol_cli.physics.fresnel import reflect, refract
 from pbvol_cli.physics.lights import ENVIRONMENT, LIGHT_RGB, LIGHT_TYPE, emitted_toward, light_pdf, light_sample
 from pbvol_cli.physics.phase import phase_eval, phase_sample
@@ -289,7 +290,7 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
                 nee_on = media[m, MED_SEALED] == 0.0 and nl > 0
                 did_nee = False
                 if nee_on:
-                    did_nee = _nee(i, px, py, pz, 0, 0.0, 0.0, 0.0, dx, dy, dz, kind, g,
+                    did_nee = _nee(i, px, py, pz, as_runtime(0), 0.0, 0.0, 0.0, dx, dy, dz, kind, g,
                                    media[m, MED_SIGMA_A:MED_SIGMA_A + 3], m, S, misc, st, sh)
                 wx, wy, wz, pdf = phase_sample(kind, g, dx, dy, dz, rand(rng, i), rand(rng, i), rand(rng, i))
                 prev_pos[i, 0], prev_pos[i, 1], prev_pos[i, 2] = px, py, pz
@@ -386,7 +387,7 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
             cur = medium[i]
             nee_on = (cur < 0 or media[cur, MED_SEALED] == 0.0) and nl > 0
             if nee_on:
-                did_nee = _nee(i, hx, hy, hz, 1, fnx, fny, fnz, dx, dy, dz, 0, 0.0,
+                did_nee = _nee(i, hx, hy, hz, as_runtime(1), fnx, fny, fnz, dx, dy, dz, as_runtime(0), 0.0,
                                surfaces[s, SURF_ALBEDO:SURF_ALBEDO + 3], cur, S, misc, st, sh)
             wx, wy, wz = cosine_hemisphere(rand(rng, i), rand(rng, i), fnx, fny, fnz)
             c = wx * fnx + wy * fny + wz * fnz
@@ -433,7 +434,7 @@ def advance_shadows(active, fresh_flags, S, misc, sh, hits, L):
     Leaves sh_active True (and fresh_flags[k] = 1) for rays that need a triangle cast.
     """
     for k in prange(active.shape[0]):
-        _shadow_advance(active[k], k, fresh_flags, S, misc, sh, hits, L)
+        _shadow_advance(active[k], np.int64(k), fresh_flags, S, misc, sh, hits, L)  # (as in init_paths)
 
 
 @njit(cache=True)
@@ -501,7 +502,7 @@ def _shadow_advance(i, k, fresh_flags, S, misc, sh, hits, L):
 @njit(parallel=True, cache=True)
 def init_paths(n, st):
     for i in prange(n):
-        _init_path(i, st)
+        _init_path(np.int64(i), st)  # (int64: prange's uint64 index would compile a second copy)
 
 
 @njit(cache=True)
