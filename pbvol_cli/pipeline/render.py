@@ -195,7 +195,7 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts):
     """Light samples and tables from the cache (built when missing), then the passes (pointbased/passes.py)."""
     from pbvol_cli.pipeline.cache import cache_dir
     from pbvol_cli.pipeline.lut import get_table, table_settings
-    from pbvol_cli.pipeline.samples import get_light_samples
+    from pbvol_cli.pipeline.samples import bounced_cache, get_light_samples
     from pbvol_cli.physics.phase import KINDS
     from pbvol_cli.pointbased.camera_pass import COMPONENTS
     from pbvol_cli.pointbased.passes import TABLE_COMPONENTS, render_passes
@@ -220,21 +220,24 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts):
     stages["samples_reused"] = float(res.reused) if res else 0.0
     stages["samples_peak_mb"] = peak_memory_mb()
     t0 = time.perf_counter()
-    tables = {}
+    tables, table_names = {}, {}
     wanted = any(c in pbl.components for c in TABLE_COMPONENTS)
     for m, info in enumerate(built.medium_info):
         sig_a, sig_s = built.medium_sigmas(m)
         st = sig_a + sig_s
-        tables[m] = [get_table(round(float(sig_s[c] / st[c]), 12), info.material.g, KINDS[info.material.phase],
-                               table_settings(scene.render.lut), cache).table if wanted and st[c] > 0 else None
-                     for c in range(3)]
+        found = [get_table(round(float(sig_s[c] / st[c]), 12), info.material.g, KINDS[info.material.phase],
+                           table_settings(scene.render.lut), cache) if wanted and st[c] > 0 else None
+                 for c in range(3)]
+        tables[m] = [r.table if r else None for r in found]
+        table_names[m] = [r.path.name if r else None for r in found]
     stages["tables_s"] = time.perf_counter() - t0
     stages["tables_peak_mb"] = peak_memory_mb()
     W, H = built.resolution
     prog, update = progress_bar(opts.quiet, f"pbl {W}x{H} {spp} spp", "pixel samples")
     with prog:
-        img, layers, stats, timings = render_passes(built, res.samples if res else None, tables, pbl, seed, spp,
-                                                    threads, update, time_limit)
+        img, layers, stats, timings = render_passes(
+            built, res.samples if res else None, tables, pbl, seed, spp, threads, update, time_limit,
+            bounced_cache(cache, res.path, pbl, table_names) if res else None)
     stages["render_s"] = stats["time_s"]
     stages["pass_samples_s"] = timings["pass_samples_s"]
     stages["bounced_s"] = timings["bounced_s"]

@@ -86,3 +86,52 @@ def get_light_samples(built, pbl: C.PblSettings, seed: int, cache: Path, threads
 
     samples, reused = cached_entry(path, LightSamples.FIELDS, LightSamples.from_arrays, place, force)
     return SamplesResult(samples, path, reused, time.perf_counter() - t0)
+
+
+# 1: the boundary's reflections of pass 0's scattered light (pointbased/passes._reflected); bump when they change
+BOUNCED_FORMAT_VERSION = 1
+
+
+class BouncedEntry:
+    """A medium's reflected bounced samples (a namespace of volume_samples.SAMPLE_KEYS arrays, or None: the
+    boundary reflects nothing) as a cache entry."""
+
+    def __init__(self, samples):
+        self.samples = samples
+
+    def arrays(self) -> dict:
+        from pbvol_cli.pointbased.volume_samples import SAMPLE_KEYS
+
+        if self.samples is None:
+            return {"absent": np.array(1)}
+        return {"absent": np.array(0), **{k: getattr(self.samples, k) for k in SAMPLE_KEYS}}
+
+    @classmethod
+    def from_arrays(cls, d: dict) -> "BouncedEntry":
+        from types import SimpleNamespace
+
+        from pbvol_cli.pointbased.volume_samples import SAMPLE_KEYS
+
+        if int(d["absent"]):
+            return cls(None)
+        ns = SimpleNamespace(**{k: d[k] for k in SAMPLE_KEYS})
+        if len({len(getattr(ns, k)) for k in SAMPLE_KEYS}) != 1 or ns.v_start.shape[1:] != (3,):
+            raise ValueError("inconsistent bounced samples")
+        return cls(ns)
+
+
+def bounced_cache(cache: Path, samples: Path, pbl: C.PblSettings, table_names: dict):
+    """first_bounced for pointbased/passes.render_passes: pass 0's reflected bounced samples of medium m from the
+    cache, or built and stored. Keyed by the light samples' entry (geometry, lights, media, seed), the settings
+    the reflections depend on and the medium's tables (table_names[m]: their entries' file names)."""
+    def first_bounced(m: int, build):
+        key = key_of(kind="bounced-samples", samples=samples.name, medium=m, tables=table_names.get(m),
+                     bounce_samples=pbl.bounce_samples, generations=pbl.bounce_generations,
+                     segments=pbl.segments_per_beam, reflections=pbl.max_internal_reflections,
+                     cut_size=pbl.cut_size, clamp=pbl.clamp, beam_width=pbl.beam_width,
+                     version=BOUNCED_FORMAT_VERSION)
+        entry, _ = cached_entry(Path(cache) / "samples" / f"bounced_{key}.npz", ("absent",), BouncedEntry.from_arrays,
+                                lambda: BouncedEntry(build()))
+        return entry.samples
+
+    return first_bounced

@@ -34,10 +34,11 @@ def kernel_tables(tables: list) -> tuple:
 
 
 def render_passes(built: BuiltScene, samples, tables: dict, pbl, seed: int, spp: int, threads: int, progress=None,
-                  time_limit: float | None = None):
+                  time_limit: float | None = None, first_bounced=None):
     """Renders spp passes of the point-based method (no pass starts after time_limit seconds). samples: the cached
     LightSamples of pass 0 (None: no medium); tables: {medium: [MSTable or None] x 3}; pbl: config.PblSettings
-    (its components included).
+    (its components included); first_bounced(m, build): pass 0's bounced samples of medium m, from a cache or
+    build() (None: always built).
     Returns (image, layers, stats, timings): render_pbl's, and the seconds spent on the later passes' light
     samples and on the bounced samples."""
     expanded = {m: kernel_tables(t) for m, t in tables.items()}
@@ -56,7 +57,9 @@ def render_passes(built: BuiltScene, samples, tables: dict, pbl, seed: int, spp:
             return media_for_pass(p % pbl.light_sets)
         lit = {m: SampleSet(current, m, built.media, expanded[m], pbl.beam_width) for m in expanded}
         t = time.perf_counter()
-        bounced = {m: _bounced_set(built, current, m, lit[m], expanded[m], pbl, seed + p, threads) for m in lit}
+        cached = first_bounced if p == 0 else None  # (pass 0's set: the cached light samples, the seed)
+        bounced = {m: _bounced_set(built, current, m, lit[m], expanded[m], pbl, seed + p, threads, cached)
+                   for m in lit}
         timings["bounced_s"] += time.perf_counter() - t
         return {m: (lit[m], bounced[m]) for m in lit}
 
@@ -65,34 +68,42 @@ def render_passes(built: BuiltScene, samples, tables: dict, pbl, seed: int, spp:
     return image, layers, stats, timings
 
 
-def _bounced_set(built, samples, m: int, lit: SampleSet, tables: tuple, pbl, seed: int, threads: int):
+def _bounced_set(built, samples, m: int, lit: SampleSet, tables: tuple, pbl, seed: int, threads: int,
+                 cached=None):
     """The bounced samples of medium m as a SampleSet, or None: scattered light that its boundary reflects back
-    (bounced.py) and scattered light that left it and the scene sends back in (the light samples' v_returned
-    part, light_samples._indirect)."""
+    (bounced.py; through cached(m, build) when given) and scattered light that left it and the scene sends back in
+    (the light samples' v_returned part, light_samples._indirect)."""
     if "bounced" not in pbl.components:
         return None
     # (their cross-sections scaled so that the bounced samples' kernel keeps the lights' beams' width)
     back = returned_samples(samples, m, (pbl.beam_width / BOUNCED_KERNEL) ** 2)
     b = None
     if pbl.bounce_generations > 0 and lit.count > 0:
-        # the returned light's own reflections on the boundary too
-        extra = SampleSet(back, m, built.media, tables, BOUNCED_KERNEL) if len(back.v_len) else None
-        # the light arriving at the boundary points: one point per gather ray for each estimator (the reflected
-        # light is smooth; the boundary points average it)
-        gather = GatherSettings(1, pbl.cut_size, pbl.clamp, True, True, True, 1, 1)
-        caster = TriangleCaster(built.vertices, built.faces, threads)
-        pool = ThreadPoolExecutor(threads) if threads > 1 else None
-        try:
-            b = bounced_samples(built, caster, pool, threads, m, lit,
-                                lambda smp: SampleSet(smp, m, built.media, tables, pbl.beam_width),
-                                pbl.bounce_samples, pbl.bounce_generations, max(1, pbl.segments_per_beam // 4),
-                                pbl.max_internal_reflections, gather, seed, extra)
-        finally:
-            caster.close()
-            if pool is not None:
-                pool.shutdown()
+        b = cached(m, lambda: _reflected(built, m, lit, back, tables, pbl, seed, threads)) if cached else \
+            _reflected(built, m, lit, back, tables, pbl, seed, threads)
     if b is not None:
         back = SimpleNamespace(**{k: np.concatenate([getattr(b, k), getattr(back, k)]) for k in SAMPLE_KEYS})
     if len(back.v_len) == 0:
         return None
     return SampleSet(back, m, built.media, tables, BOUNCED_KERNEL)
+
+
+def _reflected(built, m: int, lit: SampleSet, back, tables: tuple, pbl, seed: int, threads: int):
+    """The scattered light of medium m that its boundary reflects back, generation after generation (bounced.py),
+    as a namespace of v_* arrays, or None."""
+    # the returned light's own reflections on the boundary too
+    extra = SampleSet(back, m, built.media, tables, BOUNCED_KERNEL) if len(back.v_len) else None
+    # the light arriving at the boundary points: one point per gather ray for each estimator (the reflected
+    # light is smooth; the boundary points average it)
+    gather = GatherSettings(1, pbl.cut_size, pbl.clamp, True, True, True, 1, 1)
+    caster = TriangleCaster(built.vertices, built.faces, threads)
+    pool = ThreadPoolExecutor(threads) if threads > 1 else None
+    try:
+        return bounced_samples(built, caster, pool, threads, m, lit,
+                               lambda smp: SampleSet(smp, m, built.media, tables, pbl.beam_width),
+                               pbl.bounce_samples, pbl.bounce_generations, max(1, pbl.segments_per_beam // 4),
+                               pbl.max_internal_reflections, gather, seed, extra)
+    finally:
+        caster.close()
+        if pool is not None:
+            pool.shutdown()

@@ -6,6 +6,7 @@ from typer.testing import CliRunner
 from conftest import medium_sphere_scene, write_scene
 from pbvol_cli.imageio import read_exr, read_layers
 from pbvol_cli.main import app
+from pbvol_cli.pipeline.cache import save_npz_atomic
 
 runner = CliRunner()
 
@@ -33,3 +34,38 @@ def test_place_samples_caches_and_render_writes_component_layers(tmp_path):
     bad = runner.invoke(app, ["render", str(path), "--method", "pbl", "-o", str(out), "--components", "triple",
                               "--cache-dir", str(tmp_path / "c")])
     assert bad.exit_code == 1 and "--components" in bad.stderr and "\n" not in bad.stderr.strip()
+
+
+def test_pass_zeros_bounced_samples_are_cached_and_give_the_same_image(tmp_path):
+    """A pbl render stores pass 0's reflected bounced samples; the next render reuses them (the same pixels, bit
+    for bit); a setting they depend on makes a new entry."""
+    scene = {"camera": {"position": [0, 0, 4], "look_at": [0, 0, 0], "fov": 40, "resolution": [10, 10]},
+             "render": {"spp": 1, "lut": {"particles": 2000},
+                        "pbl": {"surface_samples": 300, "segments_per_beam": 4, "bounce_samples": 64}},
+             "lights": [{"type": "directional", "direction": [0, -1, -0.5], "irradiance": 2.0}],
+             "shapes": [{"type": "sphere", "radius": 1.0, "interface": "dielectric", "eta": 1.3,
+                         "medium": {"albedo": 0.95, "mean_free_path": 0.2, "g": 0.3}}]}
+    cache = tmp_path / "cache"
+    images = []
+    for name, bounce_samples in (("a", 64), ("b", 64), ("c", 48)):
+        scene["render"]["pbl"]["bounce_samples"] = bounce_samples
+        path = write_scene(tmp_path, scene)
+        r = runner.invoke(app, ["render", str(path), "-o", str(tmp_path / f"{name}.exr"), "--method", "pbl", "-q",
+                                "--threads", "2", "--cache-dir", str(cache), "--components", "bounced"])
+        assert r.exit_code == 0, r.output
+        images.append(read_exr(tmp_path / f"{name}.exr")[0])
+        entries = sorted(p.name for p in (cache / "samples").glob("bounced_*.npz"))
+        assert len(entries) == (1 if name != "c" else 2), entries
+    assert images[0].max() > 0 and np.array_equal(images[0], images[1])
+    assert not np.array_equal(images[0], images[2])
+    # the image comes from the entry: its power doubled (stored with a valid stamp), the bounced light grows
+    entry = min((cache / "samples").glob("bounced_*.npz"), key=lambda p: p.stat().st_mtime_ns)
+    with np.load(entry) as z:
+        data = {k: z[k] for k in z.files if not k.startswith("entry_")}
+    data["v_power"] = 2.0 * data["v_power"]
+    save_npz_atomic(entry, **data)
+    scene["render"]["pbl"]["bounce_samples"] = 64
+    r = runner.invoke(app, ["render", str(write_scene(tmp_path, scene)), "-o", str(tmp_path / "d.exr"), "--method",
+                            "pbl", "-q", "--threads", "2", "--cache-dir", str(cache), "--components", "bounced"])
+    assert r.exit_code == 0, r.output
+    assert read_exr(tmp_path / "d.exr")[0].mean() > 1.2 * images[0].mean()
