@@ -355,10 +355,25 @@ class PblSettings(Strict):
         "EXR; the command line's --components overrides)")
 
 
+class DipoleSettings(Strict):
+    """The dipole diffusion BSSRDF with hierarchical evaluation (`--method dipole`; Jensen & Buhler 2002). Single
+    scattering and the light that enters through glass come from the point-based method's light samples
+    ([render.pbl])."""
+
+    spacing: Num = Field(0.5, gt=0, le=MAX_COORD, description="irradiance samples' spacing on the translucent "
+                         "shapes, in reduced mean free paths 1/sigma'_t of the densest channel")
+    min_samples: Int = Field(4096, ge=16, le=10**8, description="irradiance samples at least (a small object "
+                             "gets them closer than `spacing`)")
+    max_samples: Int = Field(200_000, ge=16, le=10**8, description="irradiance samples at most (the spacing is "
+                             "widened to fit, with a note)")
+    max_error: Num = Field(0.05, ge=0, le=MAX_COORD, description="solid angle (sr) below which an octree node stands "
+                           "for its samples in the hierarchical sum (0: every sample summed)")
+
+
 class RenderSettings(Strict):
     """How to render (the command line's options override spp, seed, threads, time_limit and max_depth)."""
 
-    spp: Int = Field(64, ge=1, le=MAX_SPP, description="samples (volpath) or passes (pbl) per pixel")
+    spp: Int = Field(64, ge=1, le=MAX_SPP, description="samples (volpath) or passes (pbl, dipole) per pixel")
     max_depth: Int = Field(1000, ge=1, le=MAX_DEPTH, description="maximum number of scattering events and surface "
                            "bounces")
     seed: Int = Field(0, ge=0, le=MAX_SEED, description="random seed: the same seed and settings give the same image")
@@ -367,6 +382,7 @@ class RenderSettings(Strict):
     volpath: VolpathSettings = Field(VolpathSettings(), description="[render.volpath]")
     lut: LutSettings = Field(LutSettings(), description="[render.lut]")
     pbl: PblSettings = Field(PblSettings(), description="[render.pbl]")
+    dipole: DipoleSettings = Field(DipoleSettings(), description="[render.dipole]")
 
 
 # --------------------------------------------------------------------------- lights

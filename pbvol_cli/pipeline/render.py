@@ -16,7 +16,9 @@ from pbvol_cli.errors import PbvolError, RenderFailed
 from pbvol_cli.physics.lights import LIGHT_RGB
 from pbvol_cli.pipeline.progress import CompileMonitor, available_memory, peak_memory_mb, progress_bar, set_threads
 
-METHODS = ("volpath", "pbl")
+METHODS = ("volpath", "pbl", "dipole")
+DIPOLE_LAYERS = ("single", "diffusion", "surface")  # the dipole's image: pbl's single scattering, the diffusion
+# term where camera paths enter a medium, and the camera paths' surfaces
 
 
 @dataclass
@@ -70,7 +72,7 @@ def implausible_pixels(img: np.ndarray, layers: dict | None = None, light_radian
 
 # image-sized buffers per pixel (bytes): volpath's accumulator, the mean and the float32 file; pbl's five layers
 # with their pass accumulators, the pixel statistics, the mean and the float32 layers (docs/pbl.md, memory)
-IMAGE_BYTES_PER_PIXEL = {"volpath": 96, "pbl": 800}
+IMAGE_BYTES_PER_PIXEL = {"volpath": 96, "pbl": 800, "dipole": 900}
 
 
 def check_memory(method: str, width: int, height: int, pbl=None, scene_path="", available: int | None = None):
@@ -131,13 +133,13 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
     built = build_scene(scene, scene_path, opts.resolution)
     t_build = time.perf_counter() - t_build
     W, H = built.resolution
-    check_memory(opts.method, W, H, rs.pbl if opts.method == "pbl" and built.medium_info else None, scene_path)
+    check_memory(opts.method, W, H, rs.pbl if opts.method != "volpath" and built.medium_info else None, scene_path)
     if ref_img is not None and ref_img.shape[:2] != (H, W):
         raise PbvolError(f"{reference}: reference is {ref_img.shape[1]}x{ref_img.shape[0]}, render is {W}x{H}")
 
     layers, stages = None, {}
     with CompileMonitor(opts.quiet) as compiling:
-        if opts.method == "pbl":
+        if opts.method in ("pbl", "dipole"):
             img, layers, stats, stages = _render_pbl(scene, built, spp, seed, threads, time_limit, opts)
             spp_done = stats["spp"]
         else:
@@ -162,7 +164,7 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
     if opts.timings:
         meta.update({"time_s": round(elapsed, 4), "build_s": round(t_build, 4),
                      **{f"stage_{k}": round(v, 4) for k, v in stages.items()}})
-    if opts.method == "pbl":  # camera paths per pixel and pass (the mean over passes; 0 in the setting: auto)
+    if opts.method != "volpath":  # camera paths per pixel and pass (the mean over passes; 0 in the setting: auto)
         ks = stats["surface_paths"]
         meta["surface_paths"] = float(np.mean(ks))
         meta["surface_paths_per_pass"] = ",".join(f"{k:.4g}" for k in ks)
@@ -192,7 +194,9 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
 
 
 def _render_pbl(scene, built, spp, seed, threads, time_limit, opts):
-    """Light samples and tables from the cache (built when missing), then the passes (pointbased/passes.py)."""
+    """Light samples and tables from the cache (built when missing), then the passes (pointbased/passes.py). The
+    dipole (opts.method) takes the point-based method's single scattering, no tables, and its diffusion term from
+    the irradiance samples (dipole/)."""
     from pbvol_cli.pipeline.cache import cache_dir
     from pbvol_cli.pipeline.lut import get_table, table_settings
     from pbvol_cli.pipeline.samples import bounced_cache, get_light_samples
@@ -201,6 +205,12 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts):
     from pbvol_cli.pointbased.passes import TABLE_COMPONENTS, render_passes
 
     pbl = scene.render.pbl
+    dipole = opts.method == "dipole"
+    if dipole and opts.components:
+        raise PbvolError("--components: the dipole's layers are fixed (single, diffusion, surface); it takes no "
+                         "--components")
+    if dipole:
+        pbl = pbl.model_copy(update={"components": ("single",)})
     if opts.components:
         comps = tuple(c.strip() for c in opts.components.split(",") if c.strip())
         bad = [c for c in comps if c not in COMPONENTS]
@@ -216,6 +226,10 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts):
         prog, update = progress_bar(opts.quiet, "place-samples", "steps")
         with prog:
             res = get_light_samples(built, pbl, seed, cache, threads, progress=update)
+    entry = None
+    if dipole and built.medium_info:
+        entry, stages["irradiance_s"], stages["irradiance_reused"] = _diffusion_term(scene, built, seed, cache,
+                                                                                     threads, opts.quiet)
     stages["samples_s"] = time.perf_counter() - t0
     stages["samples_reused"] = float(res.reused) if res else 0.0
     stages["samples_peak_mb"] = peak_memory_mb()
@@ -233,16 +247,32 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts):
     stages["tables_s"] = time.perf_counter() - t0
     stages["tables_peak_mb"] = peak_memory_mb()
     W, H = built.resolution
-    prog, update = progress_bar(opts.quiet, f"pbl {W}x{H} {spp} spp", "pixel samples")
+    prog, update = progress_bar(opts.quiet, f"{opts.method} {W}x{H} {spp} spp", "pixel samples")
     with prog:
         img, layers, stats, timings = render_passes(
             built, res.samples if res else None, tables, pbl, seed, spp, threads, update, time_limit,
-            bounced_cache(cache, res.path, pbl, table_names) if res else None)
+            bounced_cache(cache, res.path, pbl, table_names) if res else None, entry)
+    if dipole:
+        layers = {k: layers.get(k, np.zeros_like(img)) for k in DIPOLE_LAYERS}
     stages["render_s"] = stats["time_s"]
     stages["pass_samples_s"] = timings["pass_samples_s"]
     stages["bounced_s"] = timings["bounced_s"]
     stages["peak_memory_mb"] = peak_memory_mb()
     return img, layers, stats, stages
+
+
+def _diffusion_term(scene, built, seed, cache, threads, quiet):
+    """(the dipole's DiffusionTerm, seconds, whether its samples came from the cache)."""
+    import sys
+
+    from pbvol_cli.dipole.hierarchy import DiffusionTerm
+    from pbvol_cli.pipeline.samples import get_irradiance_samples
+
+    prog, update = progress_bar(quiet, "irradiance samples", "steps")
+    with prog:
+        res = get_irradiance_samples(built, scene, seed, cache, threads, progress=update,
+                                     note=lambda text: print(f"note: {text}", file=sys.stderr))
+    return DiffusionTerm(built, res.samples, scene.render.dipole.max_error), res.seconds, float(res.reused)
 
 
 def format_summary(s: dict) -> str:

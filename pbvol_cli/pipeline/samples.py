@@ -135,3 +135,36 @@ def bounced_cache(cache: Path, samples: Path, pbl: C.PblSettings, table_names: d
         return entry.samples
 
     return first_bounced
+
+
+# 1: per surface sample and medium, where its light entered (dipole/irradiance.py); bump when they change
+IRRADIANCE_FORMAT_VERSION = 1
+
+
+def get_irradiance_samples(built, scene: C.Scene, seed: int, cache: Path, threads: int, force: bool = False,
+                           progress=None, note=None):
+    """The dipole's irradiance samples (dipole/irradiance.py) from the cache, or placed and stored. Their count
+    follows [render.dipole] spacing (at most max_samples: note(text) says so when that widens the spacing)."""
+    from pbvol_cli.dipole.irradiance import IrradianceSamples, place_irradiance_samples, sample_count
+
+    t0 = time.perf_counter()
+    dip, pbl = scene.render.dipole, scene.render.pbl
+    count, wanted = sample_count(built, dip.spacing, dip.min_samples, dip.max_samples)
+    if count < wanted and note is not None:
+        note(f"render.dipole.spacing = {dip.spacing:g} asks for {wanted} irradiance samples; placing "
+             f"render.dipole.max_samples = {dip.max_samples} (spacing {dip.spacing * (wanted / count) ** 0.5:.3g} "
+             f"mean free paths)")
+    key = key_of(kind="irradiance-samples", geometry=geometry_hash(built), count=count,
+                 reflections=pbl.max_internal_reflections, layers=pbl.max_layers, seed=seed,
+                 version=IRRADIANCE_FORMAT_VERSION)
+    path = Path(cache) / "samples" / f"irradiance_{key}.npz"
+
+    def place():
+        try:
+            return place_irradiance_samples(built, count, pbl.max_internal_reflections, pbl.max_layers, seed,
+                                            threads, progress)
+        except ValueError as e:
+            raise PbvolError(f"place-samples: {e}") from None
+
+    samples, reused = cached_entry(path, IrradianceSamples.FIELDS, IrradianceSamples.from_arrays, place, force)
+    return SamplesResult(samples, path, reused, time.perf_counter() - t0)

@@ -238,12 +238,13 @@ def _segment_beam(k, media, surfaces, beams, hits, out, eps, nseg, p_min, R2, se
 
 
 def into_media(caster, bs: BuiltScene, pos, nrm, sid, wdir, E, area: float, max_layers: int, max_reflections: int,
-               layer_rng) -> Beams:
+               layer_rng, with_source: bool = False):
     """Beams from surface samples (positions, exterior normals, surface ids) lit from directions wdir (toward the
     light) with irradiance E (n, 3): power E x area, refracted in through the outer surface, then through
     transparent layers (crossings and reflections inside a glass wall, which guides light by total internal
     reflection; layer_rng draws the Fresnel choices there) until a medium is reached. Returns the beams that
-    reached one, their cross-section area |cos theta_t|."""
+    reached one, their cross-section area |cos theta_t| (Beams), and with_source the index of each one's sample
+    (into pos)."""
     n = len(pos)
     bpos, bdir = pos.copy(), -wdir
     bpow = E * area
@@ -265,7 +266,8 @@ def into_media(caster, bs: BuiltScene, pos, nrm, sid, wdir, E, area: float, max_
         bpos[walk], bdir[walk], bpow[walk], bmed[walk], bcos[walk] = p_, d_, w_, m_, c_
         alive[walk], bn[walk] = sub, n_
     keep = alive & (bmed >= 0)
-    return Beams(bpos[keep], bdir[keep], bpow[keep], bmed[keep], area * np.abs(bcos[keep]), bn[keep])
+    beams = Beams(bpos[keep], bdir[keep], bpow[keep], bmed[keep], area * np.abs(bcos[keep]), bn[keep])
+    return (beams, np.flatnonzero(keep)) if with_source else beams
 
 
 def concatenate_beams(parts: list) -> Beams:

@@ -25,7 +25,8 @@ from numba import njit, prange
 
 from pbvol_cli.geometry.intersect import closest_surface_hits, light_hits, visible
 from pbvol_cli.geometry.raycast import TriangleCaster
-from pbvol_cli.geometry.scene_build import DIELECTRIC, DIFFUSE, MIRROR, NULL, SURF_ALBEDO, SURF_TYPE, BuiltScene
+from pbvol_cli.geometry.scene_build import (DIELECTRIC, DIFFUSE, MIRROR, NULL, SURF_ALBEDO, SURF_ETA_IN, SURF_ETA_OUT,
+                                           SURF_TYPE, BuiltScene)
 from pbvol_cli.physics.fresnel import reflect, refract
 from pbvol_cli.physics.lights import ENVIRONMENT, LIGHT_RGB, LIGHT_TYPE, emitted_toward, light_sample
 from pbvol_cli.physics.sampling import cosine_hemisphere, rand
@@ -273,7 +274,7 @@ def pass_paths(k: np.ndarray, first: np.ndarray):
 
 
 def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads: int, progress=None,
-               bounced_terms=("single", "double", "multiple"), time_limit: float | None = None):
+               bounced_terms=("single", "double", "multiple"), time_limit: float | None = None, entry=None):
     """Renders spp passes with the settings pbl (config.PblSettings); pass p uses the light samples
     media_for_pass(p) ({medium: (SampleSet of the lights' samples, SampleSet of the bounced samples or None)}).
 
@@ -284,8 +285,10 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     from the variances measured on the passes before it (auto_surface_paths): a small light's mirror image on a
     glass takes hundreds of paths, a pixel of the medium alone one. bounced_terms: the estimators that evaluate the
     bounced samples (all three make the bounced layer; tests take a subset). time_limit (seconds): no pass starts
-    after it. Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats; stats["spp"]: the passes rendered,
-    stats["surface_paths"]: the mean paths per pixel of each pass)."""
+    after it. entry: a term evaluated where camera paths enter a medium (dipole/hierarchy.DiffusionTerm: its
+    radiance(m, points, eta) is the light leaving the boundary there over the Fresnel transmittance), a layer of
+    its own (entry.layer). Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats; stats["spp"]: the passes
+    rendered, stats["surface_paths"]: the mean paths per pixel of each pass)."""
     W, H = bs.resolution
     npix = W * H
     settings = gather_settings(pbl, pbl.components)
@@ -293,7 +296,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     settings_b = gather_settings(pbl, bounced_terms)._replace(kmax=pbl.kmax_scattered)
     caster = TriangleCaster(bs.vertices, bs.faces, threads)
     pool = ThreadPoolExecutor(threads) if threads > 1 else None
-    names = (*COMPONENTS, "surface")
+    names = (*COMPONENTS, "surface", *((entry.layer,) if entry is not None else ()))
     layers = {name: np.zeros((npix, 3)) for name in names}
     stats = PixelStatistics(npix, W)
     ks = []
@@ -329,7 +332,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
             part = slice(c0, min(c0 + chunk, per_pass))
             path_surface = _trace_batch(bs, caster, pool, threads, media_data, seed, done + c0, pixels[part],
                                         samples[part], evm[part], k[pixels[part]], npix, settings, settings_b, pbl,
-                                        acc)
+                                        acc, entry)
             for ch in range(3):
                 surface_sq[:, ch] += np.bincount(pixels[part], weights=path_surface[:, ch] ** 2, minlength=npix)
             if progress is not None:
@@ -338,7 +341,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         samples_so_far += k
         for name in names:
             layers[name] += acc[name] / k[:, None]
-        stats.add(k, acc["surface"], surface_sq, sum(acc[c] for c in COMPONENTS) / k[:, None])
+        stats.add(k, acc["surface"], surface_sq, sum(acc[c] for c in names if c != "surface") / k[:, None])
     caster.close()
     if pool is not None:
         pool.shutdown()
@@ -348,10 +351,11 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
 
 
 def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samples, evm, kpaths, npix, settings,
-                 settings_b, pbl, layers):
+                 settings_b, pbl, layers, entry=None):
     """Camera paths (sample samples[i] of pixel pixels[i]; `done` paths traced before them in this render), traced to
     the end, added into layers. Path i evaluates the medium where evm[i], its medium terms weighted kpaths[i] (its
-    pixel's path count in this pass). Returns each path's surface light (n, 3)."""
+    pixel's path count in this pass), and the entry term (render_pbl) where it enters a medium. Returns each path's
+    surface light (n, 3)."""
     n = len(pixels)
     pos, dirs = np.zeros((n, 3)), np.zeros((n, 3))
     rng = np.zeros(n, np.uint64)
@@ -367,6 +371,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
     n_start = np.full((n, 3), np.nan)  # the normal of the surface each ray leaves (NaN: the camera)
     limits = PathLimits(bs.eps, pbl.max_split_depth, pbl.diffuse_bounces)
     cache, cache_b = cache_settings(pbl), cache_settings(pbl, single=True)  # the bounced light is smooth throughout
+    entered = np.zeros(n)  # eta beyond / eta before where a ray has just entered a medium (0: it has not)
     while len(pos):
         t, surf, ng, ns = closest_surface_hits(caster, bs, pos, dirs)
         tl, li = np.empty(len(pos)), np.empty(len(pos), np.int64)
@@ -398,6 +403,9 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                     eval_segments(pool, threads, evb, pos, dirs, beta_b, tev, rng, med, bounced.kernel, settings_b,
                                   cb3, state >> 2, planes, cache_b, roulette_rng)
                     contrib[:, LAYER_BOUNCED] += cb3.sum(axis=1)
+            if entry is not None:
+                _add_entry_term(entry, int(m), sub[evm[sub] & (entered[sub] > 0)], pos, beta, kpaths, entered,
+                                pixel, npix, layers)
             beta[sub] *= np.exp(-sum(bs.medium_sigmas(m))[None, :] * tev[sub, None])
         for c, name in zip((LAYER_SINGLE, LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_BOUNCED), COMPONENTS):
             for ch in range(3):
@@ -424,6 +432,8 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
             path_surface[:, ch] += np.bincount(path, weights=emit[:, ch], minlength=n)
         keep = children.ok & (children.beta.max(axis=1) > 1e-5)
         parent = np.repeat(np.arange(k), 2)[keep]
+        if entry is not None:
+            entered = _entered(bs.surfaces, np.flatnonzero(keep), parent, surf, dirs, ng, medium, children.medium[keep])
         pos, dirs, beta = children.pos[keep], children.dir[keep], children.beta[keep]
         medium, state = children.medium[keep], children.state[keep]
         depth, pixel, evm, path = depth[parent] + 1, pixel[parent], evm[parent], path[parent]
@@ -431,3 +441,24 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
         n_start = ng[parent]  # a child leaves the surface its parent met
         rng = rng[parent] ^ (np.uint64(0x9E37) * (keep.nonzero()[0] % 2 + 1).astype(np.uint64))
     return path_surface
+
+
+def _entered(surfaces, slots, parent, surf, dirs, ng, medium, child_medium) -> np.ndarray:
+    """For the children in `slots` (2 parent + 1: transmitted), eta beyond / eta before where the child has just
+    crossed into a medium other than its parent's, 0 for the others (dirs, ng, medium, surf: the parents')."""
+    s = surf[parent]
+    into = (slots % 2 == 1) & (child_medium >= 0) & (child_medium != medium[parent]) & (s >= 0)
+    s = np.where(into, s, 0)
+    from_outside = (dirs[parent] * ng[parent]).sum(axis=1) < 0.0
+    e_in, e_out = surfaces[s, SURF_ETA_IN], surfaces[s, SURF_ETA_OUT]
+    return np.where(into, np.where(from_outside, e_in / e_out, e_out / e_in), 0.0)
+
+
+def _add_entry_term(entry, m: int, idx, pos, beta, kpaths, entered, pixel, npix, layers):
+    """The entry term of the rays idx, which have just entered medium m at pos: radiance(...) leaves the boundary
+    outward as F_t radiance(...); the ray's weight already holds F_t (eta_before / eta_beyond)^2."""
+    if len(idx) == 0:
+        return
+    value = entry.radiance(m, pos[idx], entered[idx]) * (beta[idx] * (kpaths[idx] * entered[idx] ** 2)[:, None])
+    for ch in range(3):
+        layers[entry.layer][:, ch] += np.bincount(pixel[idx], weights=value[:, ch], minlength=npix)

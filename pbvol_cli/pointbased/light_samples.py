@@ -136,21 +136,26 @@ def _indirect(caster, bs, pos, nrm, sid, eps, seed, returned_orders="1,2,3+"):
 RETURNED_BEAMS = 2000  # beams of returned light kept (thin_by_power) per light-sample set
 
 
-def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max_reflections: int,
-                        max_layers: int, seed: int, threads: int = 2, progress=None,
-                        returned_orders: str = "1,2,3+") -> LightSamples:
-    """Surface samples on every medium-holding object's outer layer, their beams and the volume samples.
-    progress(done, total), if given, is called after each step (lights, indirect light, reflection passes).
-    returned_orders: the scattering orders the returned light (v_returned) keeps (tests compare it with volpath
-    --orders)."""
-    steps = len(bs.lights) + 2 + max_reflections + 1
-    step = [0]
+@dataclass
+class EnteringLight:
+    """The light that reaches the media through their outer layers: the surface samples and the beams they send
+    in (beams.py: Beams), with each beam's surface sample (an index into pos)."""
+    pos: np.ndarray  # (n, 3) surface samples on the outer layers
+    nrm: np.ndarray  # (n, 3) exterior normals
+    sid: np.ndarray  # (n,) surface ids
+    area: float  # the area each sample represents
+    spacing: float  # the samples' minimum distance
+    irradiance: np.ndarray  # (n, 3) direct and indirect
+    beams: Beams  # light that has not scattered in a medium before it reached the sample
+    beam_source: np.ndarray
+    returned: Beams  # light that has (the bounced layer's)
+    returned_source: np.ndarray
 
-    def advance():
-        step[0] += 1
-        if progress is not None:
-            progress(min(step[0], steps), steps)
 
+def entering_light(caster, bs: BuiltScene, surface_samples: int, max_reflections: int, max_layers: int, seed: int,
+                   advance=lambda: None, returned_orders: str = "1,2,3+") -> EnteringLight:
+    """Surface samples on every medium-holding object's outer layer, lit by every light (advance() after each) and by
+    indirect light (advance() after it), and the beams their transmitted light makes in the media."""
     outer = outer_layer_surfaces(bs)
     if len(outer) == 0:
         raise ValueError("no medium-holding object with a transparent boundary to place light samples on")
@@ -160,16 +165,15 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
     pos, nrm, sid, area, spacing = poisson_disk(bs.vertices, bs.faces[tri], bs.tri_normals[tri],
                                                 bs.tri_surface[tri], sph, surface_samples, seed)
     n = len(pos)
-    caster = TriangleCaster(bs.vertices, bs.faces, threads)
     eps = bs.eps
     irr = np.zeros((n, 3))
-    beams = []  # Beams of the light that has not scattered before it reached the samples
-    returned = []  # the same for light that scattered in a medium before it reached the sample
+    beams, returned = [], []  # (Beams, their samples' indices)
     layer_rng = np.random.default_rng([seed, 0x1A7E])  # Fresnel choices inside transparent layers
 
     def enter(vis, wdir, E, into):
-        into.append(into_media(caster, bs, pos[vis], nrm[vis], sid[vis], wdir, E, area, max_layers, max_reflections,
-                               layer_rng))
+        b, src = into_media(caster, bs, pos[vis], nrm[vis], sid[vis], wdir, E, area, max_layers, max_reflections,
+                            layer_rng, with_source=True)
+        into.append((b, np.asarray(vis, np.int64)[src]))
 
     for li in range(len(bs.lights)):
         wdir, dist, E = np.zeros((n, 3)), np.zeros(n), np.zeros((n, 3))
@@ -189,21 +193,46 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
     enter(vis, wdir, E0, beams)
     enter(vis, wdir, E1, returned)
     advance()
-    parts = []
-    for group, s_off, adv in ((beams, 0, advance), (returned, 0x2E7, None)):
-        b = concatenate_beams(group)
-        seg = segments
-        if group is returned:
-            # the returned light is diffuse and smooth, like the boundary's bounced light: fewer beams and
-            # segments (docs/pbl.md)
-            keep, power = thin_by_power(b.power, RETURNED_BEAMS, np.random.default_rng([seed, 0x2E8]))
-            b = Beams(b.pos[keep], b.dir[keep], power, b.medium[keep], b.area[keep], b.normal[keep])
-            seg = max(1, segments // 4)
-        parts.append(beam_segments(caster, bs, b, seg, max_reflections, seed + s_off, adv))
+    b, r = concatenate_beams([b for b, _ in beams]), concatenate_beams([b for b, _ in returned])
+    return EnteringLight(pos, nrm, sid, area, spacing, irr, b, np.concatenate([s for _, s in beams]), r,
+                         np.concatenate([s for _, s in returned]))
+
+
+def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max_reflections: int,
+                        max_layers: int, seed: int, threads: int = 2, progress=None,
+                        returned_orders: str = "1,2,3+") -> LightSamples:
+    """Surface samples on every medium-holding object's outer layer, their beams and the volume samples.
+    progress(done, total), if given, is called after each step (lights, indirect light, reflection passes).
+    returned_orders: the scattering orders the returned light (v_returned) keeps (tests compare it with volpath
+    --orders)."""
+    steps = len(bs.lights) + 2 + max_reflections + 1
+    step = [0]
+
+    def advance():
+        step[0] += 1
+        if progress is not None:
+            progress(min(step[0], steps), steps)
+
+    caster = TriangleCaster(bs.vertices, bs.faces, threads)
+    try:
+        light = entering_light(caster, bs, surface_samples, max_reflections, max_layers, seed, advance,
+                               returned_orders)
+        parts = []
+        for b, s_off, adv in ((light.beams, 0, advance), (light.returned, 0x2E7, None)):
+            seg = segments
+            if s_off:
+                # the returned light is diffuse and smooth, like the boundary's bounced light: fewer beams and
+                # segments (docs/pbl.md)
+                keep, power = thin_by_power(b.power, RETURNED_BEAMS, np.random.default_rng([seed, 0x2E8]))
+                b = Beams(b.pos[keep], b.dir[keep], power, b.medium[keep], b.area[keep], b.normal[keep])
+                seg = max(1, segments // 4)
+            parts.append(beam_segments(caster, bs, b, seg, max_reflections, seed + s_off, adv))
+    finally:
+        caster.close()
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     flag = np.concatenate([np.zeros(len(parts[0]["len"]), np.int8), np.ones(len(parts[1]["len"]), np.int8)])
-    caster.close()
     if progress is not None:
         progress(steps, steps)
-    return LightSamples(pos, nrm, sid, np.full(n, area), irr, cat["start"], cat["dir"], cat["len"], cat["power"],
+    return LightSamples(light.pos, light.nrm, light.sid, np.full(len(light.pos), light.area), light.irradiance,
+                        cat["start"], cat["dir"], cat["len"], cat["power"],
                         cat["area"], cat["medium"], cat["ends"], cat["plane"], flag)
