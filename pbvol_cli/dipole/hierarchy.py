@@ -137,3 +137,27 @@ class DiffusionTerm:
             sel = eta == e
             a[sel], norm[sel] = self._terms(float(e))
         return tree.mo(self.params[int(m)], a, points, self.max_error) * norm[:, None]
+
+
+class DiffusionPasses:
+    """The diffusion term of each pass (camera_pass.render_pbl's entry): pass 0 from the given irradiance samples
+    (the cached set), pass p from place(p) while p < light_sets (0: every pass; 1: the cached set only), then
+    cycling through those, as the point-based method's light-sample sets do: the irradiance samples' noise (one
+    direction per light and sample) averages out over passes like the camera side's."""
+
+    layer = DiffusionTerm.layer
+
+    def __init__(self, built, first: IrradianceSamples, place, max_error: float, light_sets: int):
+        self.built, self.place, self.max_error, self.light_sets = built, place, max_error, light_sets
+        self.terms = {0: DiffusionTerm(built, first, max_error)}
+
+    def for_pass(self, p: int) -> DiffusionTerm:
+        if self.light_sets == 1:
+            p = 0
+        elif self.light_sets > 1:
+            p %= self.light_sets
+        if p not in self.terms:
+            if self.light_sets == 0:
+                self.terms = {0: self.terms[0]}  # (a new set every pass: keep only the cached one)
+            self.terms[p] = DiffusionTerm(self.built, self.place(p), self.max_error)
+        return self.terms[p]

@@ -262,17 +262,24 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts):
 
 
 def _diffusion_term(scene, built, seed, cache, threads, quiet):
-    """(the dipole's DiffusionTerm, seconds, whether its samples came from the cache)."""
+    """(the dipole's DiffusionPasses, seconds, whether pass 0's samples came from the cache)."""
     import sys
 
-    from pbvol_cli.dipole.hierarchy import DiffusionTerm
+    from pbvol_cli.dipole.hierarchy import DiffusionPasses
+    from pbvol_cli.dipole.irradiance import place_irradiance_samples
     from pbvol_cli.pipeline.samples import get_irradiance_samples
 
     prog, update = progress_bar(quiet, "irradiance samples", "steps")
     with prog:
         res = get_irradiance_samples(built, scene, seed, cache, threads, progress=update,
                                      note=lambda text: print(f"note: {text}", file=sys.stderr))
-    return DiffusionTerm(built, res.samples, scene.render.dipole.max_error), res.seconds, float(res.reused)
+    pbl, dip = scene.render.pbl, scene.render.dipole
+
+    def place(p: int):
+        return place_irradiance_samples(built, res.count, pbl.max_internal_reflections, pbl.max_layers, seed + p,
+                                        threads)
+
+    return DiffusionPasses(built, res.samples, place, dip.max_error, pbl.light_sets), res.seconds, float(res.reused)
 
 
 def format_summary(s: dict) -> str:

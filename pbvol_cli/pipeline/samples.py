@@ -26,6 +26,7 @@ class SamplesResult:
     path: Path
     reused: bool
     seconds: float
+    count: int = 0  # the surface samples asked for (the dipole's later passes place as many)
 
 
 def geometry_hash(built) -> str:
@@ -167,4 +168,4 @@ def get_irradiance_samples(built, scene: C.Scene, seed: int, cache: Path, thread
             raise PbvolError(f"place-samples: {e}") from None
 
     samples, reused = cached_entry(path, IrradianceSamples.FIELDS, IrradianceSamples.from_arrays, place, force)
-    return SamplesResult(samples, path, reused, time.perf_counter() - t0)
+    return SamplesResult(samples, path, reused, time.perf_counter() - t0, count)

@@ -285,10 +285,10 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     from the variances measured on the passes before it (auto_surface_paths): a small light's mirror image on a
     glass takes hundreds of paths, a pixel of the medium alone one. bounced_terms: the estimators that evaluate the
     bounced samples (all three make the bounced layer; tests take a subset). time_limit (seconds): no pass starts
-    after it. entry: a term evaluated where camera paths enter a medium (dipole/hierarchy.DiffusionTerm: its
-    radiance(m, points, eta) is the light leaving the boundary there over the Fresnel transmittance), a layer of
-    its own (entry.layer). Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats; stats["spp"]: the passes
-    rendered, stats["surface_paths"]: the mean paths per pixel of each pass)."""
+    after it. entry: a term evaluated where camera paths enter a medium, a layer of its own (entry.layer):
+    entry.for_pass(p).radiance(m, points, eta) is the light leaving the boundary there over the Fresnel
+    transmittance (dipole/hierarchy.DiffusionPasses). Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats;
+    stats["spp"]: the passes rendered, stats["surface_paths"]: the mean paths per pixel of each pass)."""
     W, H = bs.resolution
     npix = W * H
     settings = gather_settings(pbl, pbl.components)
@@ -317,6 +317,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
                 k = np.full(npix, AUTO_FIRST_PATHS, np.int64)
         ks.append(float(k.mean()))
         media_data = media_for_pass(p)
+        entry_p = entry.for_pass(p) if entry is not None else None
         # which of the pixel's k paths evaluates the medium in this pass (k = 1: every path)
         draw = np.random.default_rng([seed, p, 0x5EC7])
         if k.min() == k.max():
@@ -332,7 +333,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
             part = slice(c0, min(c0 + chunk, per_pass))
             path_surface = _trace_batch(bs, caster, pool, threads, media_data, seed, done + c0, pixels[part],
                                         samples[part], evm[part], k[pixels[part]], npix, settings, settings_b, pbl,
-                                        acc, entry)
+                                        acc, entry_p)
             for ch in range(3):
                 surface_sq[:, ch] += np.bincount(pixels[part], weights=path_surface[:, ch] ** 2, minlength=npix)
             if progress is not None:
