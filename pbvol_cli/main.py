@@ -171,28 +171,42 @@ def place_samples(
     force: ForceOpt = False,
     cache_dir: CacheDirOpt = None,
     quiet: QuietOpt = False,
+    method: Annotated[str, typer.Option(help="pbl: the light samples; dipole: those (its single scattering) and the "
+                                        "irradiance samples")] = "pbl",
 ):
-    """Place the light surface and volume samples of the point-based method and cache them."""
+    """Place the light surface and volume samples of the point-based method (and the dipole's irradiance samples)
+    and cache them."""
     from pbvol_cli import config as C
     from pbvol_cli.geometry.scene_build import build_scene
     from pbvol_cli.pipeline.cache import cache_dir as resolve_cache
     from pbvol_cli.pipeline.progress import peak_memory_mb, progress_bar, set_threads
-    from pbvol_cli.pipeline.samples import check_samples_memory, get_light_samples
+    from pbvol_cli.pipeline.samples import check_samples_memory, get_irradiance_samples, get_light_samples
 
     try:
+        if method not in ("pbl", "dipole"):
+            raise PbvolError(f"--method: expected pbl or dipole, got {method!r}")
         n = set_threads(threads)
         sc = C.load_scene(scene)
         check_samples_memory(sc.render.pbl, scene)
         built = build_scene(sc, scene)
+        cache = resolve_cache(cache_dir, for_writing=True)
+        the_seed = sc.render.seed if seed is None else seed
         prog, update = progress_bar(quiet, "place-samples", "steps")
         with prog:
-            r = get_light_samples(built, sc.render.pbl, sc.render.seed if seed is None else seed,
-                                  resolve_cache(cache_dir, for_writing=True), n, force, update)
+            r = get_light_samples(built, sc.render.pbl, the_seed, cache, n, force, update)
+        if method == "dipole":
+            prog, update = progress_bar(quiet, "irradiance samples", "steps")
+            with prog:
+                ir = get_irradiance_samples(built, sc, the_seed, cache, n, force, update,
+                                            note=lambda text: typer.echo(f"note: {text}", err=True))
     except (PbvolError, OSError) as e:
         _fail(e)
     what = "reused cached samples" if r.reused else f"placed in {r.seconds:.2f} s"
     typer.echo(f"{scene}: {what}: {len(r.samples.s_pos)} surface samples, {len(r.samples.v_start)} volume samples, "
                f"peak memory {peak_memory_mb():.0f} MiB -> {r.path}")
+    if method == "dipole":
+        what = "reused cached samples" if ir.reused else f"placed in {ir.seconds:.2f} s"
+        typer.echo(f"{scene}: {what}: {len(ir.samples.pos)} irradiance samples -> {ir.path}")
 
 
 GATED_METRICS = {"mse": "mse", "rel-mse": "rel_mse"}  # compare --metric: the key of image_metrics it reads

@@ -1,6 +1,7 @@
 """The command line as a user meets it: bad input, compare, materials, check, render."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -318,3 +319,14 @@ def test_render_overrides(tmp_path):
     assert r.exit_code == 0, r.output
     img, meta = read_exr(out)
     assert img.shape == (4, 6, 3) and meta["spp"] == 3 and meta["threads"] == 1 and meta["orders"] == "0"
+
+
+def test_check_says_where_diffusion_is_poor():
+    """The dipole's regime: the marble bunny (about 70 reduced mean free paths, reduced albedo 0.998) suits it; the
+    wax sphere (3.3 reduced mean free paths across, blue reduced albedo 0.37) does not."""
+    root = Path(__file__).resolve().parent.parent / "configs"
+    media = {name: json.loads(runner.invoke(app, ["check", str(root / f"{name}.toml"), "--json"]).stdout)["media"][0]
+             for name in ("marble_bunny", "wax_sphere")}
+    assert media["marble_bunny"]["diffusion_poor"] == ""
+    assert "3.3 reduced mean free paths thick" in media["wax_sphere"]["diffusion_poor"]
+    assert "reduced albedo 0.37" in media["wax_sphere"]["diffusion_poor"]

@@ -36,7 +36,8 @@ def describe(scene: C.Scene, path: Path) -> dict:
         across = obj / mfp
         out["media"].append({"label": mi.label, "albedo": alb.tolist(), "mean_free_path": mfp.tolist(),
                              "g": mi.material.g, "phase": mi.material.phase, "sealed": bool(b.media[k, MED_SEALED]),
-                             "object_size": obj, "mean_free_paths_across": across.tolist()})
+                             "object_size": obj, "mean_free_paths_across": across.tolist(),
+                             "diffusion_poor": _diffusion_regime(b, k, box)})
         thickest = float(np.max(across, where=np.isfinite(across), initial=0.0))
         if thickest > 2.0 * extent:
             out["notes"].append(f"{mi.label}: {thickest:.3g} mean free paths across, beyond the "
@@ -44,6 +45,29 @@ def describe(scene: C.Scene, path: Path) -> dict:
                                 "loses the light that diffuses farther (docs/pbl.md)")
     out["notes"] += _reach_notes(scene, b)
     return out
+
+
+DIFFUSION_THICKNESS = 10.0  # reduced mean free paths: a thinner body is far from the dipole's half-space
+DIFFUSION_ALBEDO = 0.9  # reduced albedo below which diffusion is a poor model (docs/dipole.md)
+
+
+def _diffusion_regime(b, k: int, box) -> str:
+    """Whether the dipole's diffusion (--method dipole) suits medium k: "" where it does, else why not (its body
+    thin in reduced mean free paths 1/sigma'_t, so light crosses it rather than diffusing back out, or its reduced
+    albedo low)."""
+    mi = b.medium_info[k]
+    sp = (1.0 - mi.material.g) * mi.sigma_s
+    tp = mi.sigma_a + sp
+    if box is None or not np.any(tp > 0):
+        return ""
+    thin = float(np.min(box[1] - box[0]) * np.min(tp[tp > 0]))
+    albedo = float(np.min(np.where(tp > 0, sp / np.maximum(tp, 1e-300), 1.0)))
+    why = []
+    if thin < DIFFUSION_THICKNESS:
+        why.append(f"only {thin:.2g} reduced mean free paths thick")
+    if albedo < DIFFUSION_ALBEDO:
+        why.append(f"reduced albedo {albedo:.2g}")
+    return ", ".join(why)
 
 
 SMALL_LIGHT_SR = 0.01  # a light subtending less than this from a sealed medium is found by volpath only by chance
@@ -111,6 +135,8 @@ def summarize(scene: C.Scene, path: Path) -> str:
                      f"{d['unit']}, g {m['g']:g}, phase {m['phase']}"
                      + (", sealed (no light reaches it directly)" if m["sealed"] else ""))
         lines.append(f"      object size {m['object_size']:.4g} = {_f(m['mean_free_paths_across'])} mean free paths")
+        if m["diffusion_poor"]:
+            lines.append(f"      dipole: far from its thick, high-albedo regime ({m['diffusion_poor']})")
     lines += [f"  note: {n}" for n in d["notes"]]
     return "\n".join(lines)
 

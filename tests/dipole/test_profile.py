@@ -105,3 +105,18 @@ def test_no_scattering_no_diffusion():
     rd_profile(p, boundary_a(1.5), np.array([0.0, 1.0, 2.0]), out)
     assert np.all(out[:, :2] == 0) and np.all(out[:, 2] > 0)
     assert np.all(np.isfinite(out))
+
+
+def test_every_preset_has_a_profile():
+    """Every material preset gives finite dipole parameters and a total diffuse reflectance in [0, 1] (per mm)."""
+    from pbvol_cli import config as C
+
+    names = C.preset_names()
+    assert len(names) >= 15
+    for name in names:
+        mat = C.load_material(C.materials_dir() / f"{name}.toml")
+        sig_a, sig_s = mat.coefficients("mm")
+        p = dipole_params(sig_a, sig_s, mat.g)
+        assert np.all(np.isfinite(p)), name
+        total = total_diffuse_reflectance(p, boundary_a(mat.eta))
+        assert np.all((total >= 0) & (total <= 1)), (name, total)
