@@ -1,6 +1,7 @@
 """The package's layers: every module imports only from its own layer or below, and no private name crosses a
 file. Layers, from the bottom: errors; config and the file formats; physics; geometry; the multiple-scattering
-table; what the integrators share (render); the point-based method; the pipeline's stages; the command line."""
+table; what the integrators share (render); the point-based method; the dipole (which takes the point-based method's
+light surface samples and octree); the pipeline's stages; the command line."""
 
 import ast
 from pathlib import Path
@@ -14,6 +15,7 @@ LAYERS = [
     {"multiple_scattering"},
     {"render"},
     {"pointbased"},
+    {"dipole"},
     {"pipeline"},
     {"main"},
 ]
