@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from pbl_bench import RENDER, ROOT, _run, reference, rel_mse  # noqa: E402
+from pbl_bench import RENDER, ROOT, _run, rel_mse, scenes_with_references  # noqa: E402
 
 
 def main():
@@ -42,9 +42,7 @@ def main():
     args.out.mkdir(parents=True, exist_ok=True)
     res = f"{args.resolution}x{args.resolution}"
     rows = []
-    for name in args.scenes.split(","):
-        scene = ROOT / "configs" / f"{name}.toml"
-        ref, noise = reference(scene, res, args.ref_spp, args.threads, args.cache)
+    for name, scene, ref, noise in scenes_with_references(args, res):
         images = {}
         for method, spps in (("pbl", args.pbl_spp), ("dipole", args.dipole_spp), ("volpath", args.volpath_spp)):
             for spp in (int(v) for v in spps.split(",")):

@@ -135,6 +135,15 @@ def reference(scene: Path, res: str, spp: int, threads: int, cache: Path):
     return ref, rel_mse(halves[0], halves[1]) / 4.0
 
 
+def scenes_with_references(args, res: str):
+    """(name, scene file, reference image, its noise) for each of args.scenes (a comma list of configs/ stems),
+    the references at args.ref_spp (reference())."""
+    for name in args.scenes.split(","):
+        scene = ROOT / "configs" / f"{name}.toml"
+        ref, noise = reference(scene, res, args.ref_spp, args.threads, args.cache)
+        yield name, scene, ref, noise
+
+
 def _scene_hash(scene: Path, res: str) -> str:
     from pbvol_cli import config as C
     from pbvol_cli.geometry.scene_build import build_scene

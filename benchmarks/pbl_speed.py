@@ -27,7 +27,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from pbl_bench import RENDER, ROOT, _run, reference, rel_mse  # noqa: E402
+from pbl_bench import RENDER, ROOT, _run, rel_mse, scenes_with_references  # noqa: E402
 
 
 def time_to(points: list[tuple[float, float]], target: float, extrapolate: bool) -> float | None:
@@ -69,9 +69,7 @@ def main():
     args.out.mkdir(parents=True, exist_ok=True)
     res = f"{args.resolution}x{args.resolution}"
     rows = []
-    for name in args.scenes.split(","):
-        scene = ROOT / "configs" / f"{name}.toml"
-        ref, ref_noise = reference(scene, res, args.ref_spp, args.threads, args.cache)
+    for name, scene, ref, ref_noise in scenes_with_references(args, res):
         curves = {}
         for method, spps in (("pbl", args.pbl_spp), ("volpath", args.volpath_spp)):
             pts = []

@@ -87,16 +87,10 @@ def place_irradiance_samples(bs: BuiltScene, count: int, max_reflections: int, m
                              threads: int = 2, progress=None) -> IrradianceSamples:
     """About `count` irradiance samples (see the module's docstring). progress(done, total) after each light and
     the indirect light."""
-    from pbvol_cli.pointbased.light_samples import entering_light
+    from pbvol_cli.pointbased.light_samples import entering_light, step_counter
 
     steps = len(bs.lights) + 2
-    step = [0]
-
-    def advance():
-        step[0] += 1
-        if progress is not None:
-            progress(min(step[0], steps), steps)
-
+    advance = step_counter(progress, steps)
     caster = TriangleCaster(bs.vertices, bs.faces, threads)
     try:
         light = entering_light(caster, bs, count, max_reflections, max_layers, seed, advance)

@@ -198,6 +198,18 @@ def entering_light(caster, bs: BuiltScene, surface_samples: int, max_reflections
                          np.concatenate([s for _, s in returned]))
 
 
+def step_counter(progress, steps: int):
+    """A function that counts one step each call and reports (done, steps) to progress, if given."""
+    done = [0]
+
+    def advance():
+        done[0] += 1
+        if progress is not None:
+            progress(min(done[0], steps), steps)
+
+    return advance
+
+
 def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max_reflections: int,
                         max_layers: int, seed: int, threads: int = 2, progress=None,
                         returned_orders: str = "1,2,3+") -> LightSamples:
@@ -206,13 +218,7 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
     returned_orders: the scattering orders the returned light (v_returned) keeps (tests compare it with volpath
     --orders)."""
     steps = len(bs.lights) + 2 + max_reflections + 1
-    step = [0]
-
-    def advance():
-        step[0] += 1
-        if progress is not None:
-            progress(min(step[0], steps), steps)
-
+    advance = step_counter(progress, steps)
     caster = TriangleCaster(bs.vertices, bs.faces, threads)
     try:
         light = entering_light(caster, bs, surface_samples, max_reflections, max_layers, seed, advance,
