@@ -118,9 +118,53 @@ class Strict(BaseModel):
 # --------------------------------------------------------------------------- materials
 
 
+class GridDensity(Strict):
+    """A density grid (seed 003, "VolumeGridDensity"): the voxels of a 3D array stretched over a box, trilinear
+    between voxel centres, 0 outside the box."""
+
+    type: Literal["grid"]
+    file: str = Field(description="an .npz file, relative to the scene file, holding a 3D float array `density` "
+                      "(x, y, z order; values >= 0); OpenVDB .vdb files are not read (no maintained Python reader "
+                      "on PyPI: convert them to .npz)")
+    bounds: tuple[Vec3, Vec3] = Field(description="the box [[x0, y0, z0], [x1, y1, z1]] the grid spans, scene units")
+    scale: Num = Field(1.0, ge=0, le=MAX_COORD, description="multiplies the grid's values")
+    emission_key: str | None = Field(None, description="a second array in the file, the same shape, scaling "
+                                     "`emission` voxel by voxel (a flame's temperature); default: emission is "
+                                     "uniform")
+
+    @model_validator(mode="after")
+    def _box(self):
+        if not all(a < b for a, b in zip(*self.bounds)):
+            raise ValueError(f"bounds: expected [[x0, y0, z0], [x1, y1, z1]] with x0 < x1, y0 < y1, z0 < z1, got "
+                             f"{[list(v) for v in self.bounds]}")
+        return self
+
+
+class ExponentialDensity(Strict):
+    """Density a e^(-b h), h the height above `origin` along `up` (seed 003, "ExponentialDensity"): fog that thins
+    with height."""
+
+    type: Literal["exponential"]
+    a: Num = Field(ge=0, le=MAX_COORD, description="the density at height 0")
+    b: Num = Field(ge=-1e6, le=1e6, description="how fast it falls with height, per scene unit")
+    up: Vec3 = Field((0.0, 1.0, 0.0), description="the direction heights are measured along (need not be unit)")
+    origin: Vec3 = Field((0.0, 0.0, 0.0), description="where the height is 0, scene units")
+
+    @field_validator("up")
+    @classmethod
+    def _nz(cls, v):
+        if np.linalg.norm(v) == 0:
+            raise ValueError("expected a non-zero direction")
+        return v
+
+
+Density = Annotated[Union[GridDensity, ExponentialDensity], Field(discriminator="type")]
+
+
 class Material(Strict):
-    """A homogeneous participating medium. Give exactly one pair of coefficients, per RGB channel:
-    (albedo, mean_free_path), (sigma_a, sigma_s), or (sigma_s_reduced, sigma_a) as in Jensen et al. 2001."""
+    """A participating medium, homogeneous unless it has a `density`. Give exactly one pair of coefficients, per
+    RGB channel: (albedo, mean_free_path), (sigma_a, sigma_s), or (sigma_s_reduced, sigma_a) as in Jensen et al.
+    2001."""
 
     name: str | None = Field(None, description="a label for messages and metadata")
     source: str | None = Field(None, description="where the numbers come from (free text)")
@@ -146,6 +190,11 @@ class Material(Strict):
                          json_schema_extra={"exclusiveMinimum": 0})
     diffuse_reflectance: Albedo | None = Field(None, description="informational only (Jensen et al. 2001's "
                                                "measured R_d); not used by the renderer")
+    density: Density | None = Field(None, description="a spatially varying density multiplying sigma_a and "
+                                    "sigma_s (`type` grid or exponential); only `volpath` renders it")
+    emission: Emission | None = Field(None, description="emitted radiance L_e, RGB: the medium adds sigma_a(x) "
+                                      "L_e per unit length (so it scales with the density; a thick absorbing body "
+                                      "of it glows with radiance L_e); only `volpath` renders it")
 
     @field_validator("g")
     @classmethod

@@ -7,7 +7,10 @@ two indices are equal transmits without refraction and is turned into NULL here.
 
 Media, columns MED_*: sigma_a and sigma_s (RGB, 1/scene unit), phase function kind (physics.phase.KINDS), g, and
 "sealed": enclosed only by refracting or opaque surfaces, so that no shadow ray from inside can reach a light and
-next-event estimation is skipped there (it would always be blocked).
+next-event estimation is skipped there (it would always be blocked). A heterogeneous or emissive medium also has
+its density kind (MED_KIND: HOMOGENEOUS, GRID, EXPONENTIAL; TRACKED_HOMOGENEOUS for an emissive homogeneous one),
+the majorant of its sigma_t over space and channels (MED_MAJORANT), its emitted radiance (MED_EMIT, RGB) and its
+field's parameters (MED_FIELD + GRID_* or EXP_*); grids' voxels are in BuiltScene.density_data (render/media.py).
 
 Spheres (analytic sphere shapes), columns SPH_*: centre, radius, surface row. Camera: see camera_params.
 """
@@ -32,7 +35,14 @@ INTERFACES = {"diffuse": DIFFUSE, "dielectric": DIELECTRIC, "mirror": MIRROR, "n
 SURF_TYPE, SURF_MEDIUM_IN, SURF_MEDIUM_OUT, SURF_ETA_IN, SURF_ETA_OUT, SURF_ALBEDO = 0, 1, 2, 3, 4, 5  # albedo: 3
 SURF_COLS = 8
 MED_SIGMA_A, MED_SIGMA_S, MED_PHASE, MED_G, MED_SEALED = 0, 3, 6, 7, 8  # sigma_a, sigma_s: 3 (RGB) each
-MED_COLS = 9
+MED_KIND, MED_MAJORANT, MED_EMIT, MED_FIELD = 9, 10, 11, 14  # emit: 3 (RGB); field: FIELD_COLS parameters
+FIELD_COLS = 12
+MED_COLS = MED_FIELD + FIELD_COLS
+HOMOGENEOUS, GRID, EXPONENTIAL, TRACKED_HOMOGENEOUS = 0, 1, 2, 3  # MED_KIND values
+# MED_FIELD + ...: a grid's box corners, voxel counts, offset of its voxels (and of its emission voxels, -1: none)
+GRID_LO, GRID_HI, GRID_DIMS, GRID_OFFSET, GRID_EMIT_OFFSET = 0, 3, 6, 9, 10
+# an exponential's a, b, unit up direction, origin
+EXP_A, EXP_B, EXP_UP, EXP_ORIGIN = 0, 1, 2, 5
 SPH_CENTER, SPH_RADIUS, SPH_SURFACE = 0, 3, 4
 SPH_COLS = 5
 # camera_params: position, forward, right (scaled), up (scaled): 3 each; then the image size
@@ -66,6 +76,7 @@ class BuiltScene:
     extent: float  # bounding-box diagonal of the geometry
     bbox: np.ndarray  # (2, 3)
     medium_info: list[MediumInfo] = field(default_factory=list)
+    density_data: np.ndarray = field(default_factory=lambda: np.zeros(1))  # grids' voxels (render/media.py)
     surface_shape: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # shape index of each surface
     shape_triangles: list[tuple[str, int]] = field(default_factory=list)
 
@@ -215,13 +226,15 @@ def build_scene(scene: C.Scene, path: Path, resolution: tuple[int, int] | None =
     extent = float(np.linalg.norm(bbox[1] - bbox[0])) or 1.0
     eps = 2e-5 * max(extent, float(np.abs(bbox).max()))
 
-    # Media table, with the sealed flag.
+    # Media table, with the sealed flag and any density field.
     med = np.zeros((len(media.info), MED_COLS))
+    voxels = [np.zeros(1)]
     for k, mi in enumerate(media.info):
         med[k, MED_SIGMA_A:MED_SIGMA_A + 3], med[k, MED_SIGMA_S:MED_SIGMA_S + 3] = mi.sigma_a, mi.sigma_s
         med[k, MED_PHASE], med[k, MED_G] = KINDS[mi.material.phase], mi.material.g
         sides = (surf[:, SURF_MEDIUM_IN] == k) | (surf[:, SURF_MEDIUM_OUT] == k)
         med[k, MED_SEALED] = float(not np.any(sides & (surf[:, SURF_TYPE] == NULL)))
+        _density_columns(med[k], mi, k, path, voxels, _medium_bounds(V, F, tri_surf, S, surf, k))
 
     # Distance grid over where the media are (triangles bounding media, spheres holding media).
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
@@ -245,5 +258,67 @@ def build_scene(scene: C.Scene, path: Path, resolution: tuple[int, int] | None =
         camera=camera_params(scene.camera, resolution),
         grid_params=gp, grid_cells=gc, eps=eps, extent=extent, bbox=bbox,
         medium_info=media.info, shape_triangles=shape_tris,
-        surface_shape=np.asarray(owner, np.int64),
+        surface_shape=np.asarray(owner, np.int64), density_data=np.concatenate(voxels),
     )
+
+
+def _medium_bounds(V, F, tri_surf, S, surf, k: int):
+    """(lo, hi) of the surfaces bounding medium k, or None (it bounds nothing: the scene's outside)."""
+    sides = (surf[:, SURF_MEDIUM_IN] == k) | (surf[:, SURF_MEDIUM_OUT] == k)
+    pts = []
+    if len(F):
+        tri = sides[np.concatenate(tri_surf)]
+        if tri.any():
+            pts.append(V[F[tri]].reshape(-1, 3).astype(float))
+    for row in S:
+        if sides[int(row[SPH_SURFACE])]:
+            pts.append(sphere_bounds(row))
+    if not pts:
+        return None
+    p = np.concatenate(pts)
+    return p.min(0), p.max(0)
+
+
+def _density_columns(row: np.ndarray, mi: MediumInfo, k: int, path: Path, voxels: list, bounds):
+    """Fill a media-table row's MED_KIND, MED_MAJORANT, MED_EMIT and MED_FIELD columns from its material; a grid's
+    voxels are appended to `voxels` (their offset counted from the first array)."""
+    mat = mi.material
+    dens, emit = mat.density, np.asarray(mat.emission if mat.emission is not None else (0.0, 0.0, 0.0), float)
+    where = f"medium {mi.label!r}"
+    row[MED_EMIT:MED_EMIT + 3] = emit
+    st = float(np.max(mi.sigma_a + mi.sigma_s))
+    f = MED_FIELD
+    if dens is None:
+        row[MED_KIND] = TRACKED_HOMOGENEOUS if emit.any() else HOMOGENEOUS
+        row[MED_MAJORANT] = st
+        return
+    if isinstance(dens, C.GridDensity):
+        from pbvol_cli.geometry.density_grid import load_grid
+
+        grid, emission = load_grid(path, dens, where)
+        row[MED_KIND] = GRID
+        row[f + GRID_LO:f + GRID_LO + 3], row[f + GRID_HI:f + GRID_HI + 3] = dens.bounds[0], dens.bounds[1]
+        row[f + GRID_DIMS:f + GRID_DIMS + 3] = grid.shape
+        row[f + GRID_OFFSET] = sum(len(v) for v in voxels)
+        voxels.append(grid.ravel() * dens.scale)
+        row[f + GRID_EMIT_OFFSET] = -1.0
+        if emission is not None:
+            row[f + GRID_EMIT_OFFSET] = sum(len(v) for v in voxels)
+            voxels.append(emission.ravel())
+        row[MED_MAJORANT] = st * float(grid.max(initial=0.0)) * dens.scale
+        return
+    up = np.asarray(dens.up, float) / np.linalg.norm(dens.up)
+    if bounds is None:
+        raise ConfigError(path, where, "an exponential density needs a medium bounded by a shape (its majorant is "
+                          "taken over the shape's box)")
+    corners = np.array([[bounds[i][0], bounds[j][1], bounds[l][2]] for i in (0, 1) for j in (0, 1) for l in (0, 1)])
+    h = (corners - np.asarray(dens.origin, float)) @ up
+    with np.errstate(over="ignore"):
+        dmax = dens.a * float(np.exp(-dens.b * (h.min() if dens.b > 0 else h.max())))
+    if not math.isfinite(dmax * st):
+        raise ConfigError(path, where, f"the exponential density reaches {dmax:.3g} inside its shape's box; "
+                          "expected a finite density (lower b or move the origin)")
+    row[MED_KIND] = EXPONENTIAL
+    row[f + EXP_A], row[f + EXP_B] = dens.a, dens.b
+    row[f + EXP_UP:f + EXP_UP + 3], row[f + EXP_ORIGIN:f + EXP_ORIGIN + 3] = up, dens.origin
+    row[MED_MAJORANT] = st * dmax

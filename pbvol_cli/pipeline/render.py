@@ -140,7 +140,8 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
     layers, stages = None, {}
     with CompileMonitor(opts.quiet) as compiling:
         if opts.method in ("pbl", "dipole"):
-            img, layers, stats, stages = _render_pbl(scene, built, spp, seed, threads, time_limit, opts)
+            img, layers, stats, stages = _render_pbl(scene, built, spp, seed, threads, time_limit, opts,
+                                                              scene_path)
             spp_done = stats["spp"]
         else:
             from pbvol_cli.render.volpath import orders_mask, render_volpath
@@ -193,7 +194,7 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
     return summary
 
 
-def _render_pbl(scene, built, spp, seed, threads, time_limit, opts):
+def _render_pbl(scene, built, spp, seed, threads, time_limit, opts, scene_path):
     """Light samples and tables from the cache (built when missing), then the passes (pointbased/passes.py). The
     dipole (opts.method) takes the point-based method's single scattering, no tables, and its diffusion term from
     the irradiance samples (dipole/)."""
@@ -204,6 +205,7 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts):
     from pbvol_cli.pointbased.camera_pass import COMPONENTS
     from pbvol_cli.pointbased.passes import TABLE_COMPONENTS, render_passes
 
+    homogeneous_media_only(built, opts.method, scene_path)
     pbl = scene.render.pbl
     dipole = opts.method == "dipole"
     if dipole and opts.components:
@@ -259,6 +261,17 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts):
     stages["bounced_s"] = timings["bounced_s"]
     stages["peak_memory_mb"] = peak_memory_mb()
     return img, layers, stats, stages
+
+
+def homogeneous_media_only(built, method: str, scene_path):
+    """pbl and the dipole model homogeneous, non-emissive media only: refuse the others, naming the medium."""
+    from pbvol_cli.geometry.scene_build import HOMOGENEOUS, MED_KIND
+
+    for m, info in enumerate(built.medium_info):
+        if built.media[m, MED_KIND] != HOMOGENEOUS:
+            what = "a density field" if info.material.density is not None else "emission"
+            raise PbvolError(f"{scene_path}: medium {info.label!r} has {what}: --method {method} renders "
+                             "homogeneous, non-emissive media only; render it with --method volpath")
 
 
 def _diffusion_term(scene, built, seed, cache, threads, quiet):

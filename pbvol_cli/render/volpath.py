@@ -12,6 +12,9 @@ Physics:
 - Homogeneous media with RGB coefficients: free-flight distances are sampled in one channel chosen with
   probability proportional to the path throughput, and weighted by the one-sample MIS (balance) over the
   three channels (spectral MIS), so the estimate stays unbiased when sigma_t differs per channel.
+- Heterogeneous (density grid, exponential) and emissive media: delta tracking against a majorant with spectral
+  tracking's weights, emission collected at every tentative collision, ratio tracking for shadow rays
+  (render/media.py).
 - Phase functions sampled exactly; smooth dielectrics with Fresnel (reflection or refraction chosen in
   proportion to F), total internal reflection, the (eta_i / eta_t)^2 radiance scale; mirrors; Lambertian.
 - Next-event estimation at scattering events and diffuse surfaces, with power-heuristic MIS for area
@@ -33,9 +36,9 @@ from numba import njit, prange
 
 from pbvol_cli.geometry.distance_grid import mesh_distance_bound
 from pbvol_cli.geometry.raycast import TriangleCaster
-from pbvol_cli.geometry.scene_build import (DIELECTRIC, MED_G, MED_PHASE, MED_SEALED, MED_SIGMA_A, MED_SIGMA_S,
-                                           MIRROR, NULL, SPH_CENTER, SPH_RADIUS, SPH_SURFACE, SURF_ALBEDO, SURF_TYPE,
-                                           BuiltScene)
+from pbvol_cli.geometry.scene_build import (DIELECTRIC, HOMOGENEOUS, MED_G, MED_KIND, MED_PHASE, MED_SEALED,
+                                           MED_SIGMA_A, MED_SIGMA_S, MIRROR, NULL, SPH_CENTER, SPH_RADIUS, SPH_SURFACE,
+                                           SURF_ALBEDO, SURF_TYPE, BuiltScene)
 from pbvol_cli.jit import as_runtime
 from pbvol_cli.physics.fresnel import reflect, refract
 from pbvol_cli.physics.lights import ENVIRONMENT, LIGHT_RGB, LIGHT_TYPE, emitted_toward, light_pdf, light_sample
@@ -43,6 +46,7 @@ from pbvol_cli.physics.phase import phase_eval, phase_sample
 from pbvol_cli.physics.sampling import cosine_hemisphere, power_heuristic, rand, seed_state
 from pbvol_cli.render.camera import generate_camera_rays
 from pbvol_cli.render.interfaces import dielectric_fresnel, incident_side, indices, medium_beyond, shadow_ray_length
+from pbvol_cli.render.media import segment_transmittance, tentative_collision, tracked_flight
 from pbvol_cli.geometry.intersect import analytic_hit, mesh_shading_normal
 
 DEAD, NEED_CAST, CONTINUE = 0, 1, 2
@@ -53,10 +57,11 @@ M_EPS, M_MAXDEPTH, M_RRDEPTH, M_ORDERS, M_MAXORDER, M_HASMESH, M_NLIGHTS = range
 
 # The kernels' bundles (numba reads them by field name or unpacks them in this order).
 SceneTables = namedtuple("SceneTables", ["tri_surface", "tri_normals", "spheres", "surfaces", "media", "lights",
-                                         "grid_params", "grid_cells"])
+                                         "grid_params", "grid_cells", "density"])
 PathState = namedtuple("PathState", ["pos", "dir", "beta", "L", "rng", "status", "medium", "depth", "nscat", "tpend",
                                      "prev_pos", "prev_pdf", "eta_scale"])
-ShadowState = namedtuple("ShadowState", ["active", "pos", "dir", "tmax", "contrib", "medium", "light"])
+ShadowState = namedtuple("ShadowState", ["active", "pos", "dir", "tmax", "contrib", "medium", "light", "rng"])
+SHADOW_STREAM = np.uint64(0xD1B54A32D192ED03)  # a shadow ray's ratio tracking: its path's state xor this
 TriangleHits = namedtuple("TriangleHits", ["t", "prim", "u", "v", "ng"])
 
 
@@ -105,6 +110,7 @@ class Paths:
         self.sh_C = np.zeros((n, 3))
         self.sh_med = np.zeros(n, np.int32)
         self.sh_light = np.zeros(n, np.int32)  # target light (ignored as an occluder)
+        self.sh_rng = np.zeros(n, np.uint64)  # ratio tracking's random stream
         # triangle hits from the last cast
         self.hit_t = np.zeros(n)
         self.hit_prim = np.zeros(n, np.int32)
@@ -118,7 +124,7 @@ class Paths:
 
     def shadow(self) -> ShadowState:
         return ShadowState(self.sh_active, self.sh_pos, self.sh_dir, self.sh_tmax, self.sh_C, self.sh_med,
-                           self.sh_light)
+                           self.sh_light, self.sh_rng)
 
     def hits(self) -> TriangleHits:
         return TriangleHits(self.hit_t, self.hit_prim, self.hit_u, self.hit_v, self.hit_ng)
@@ -134,7 +140,10 @@ def _order_ok(misc, n):
 
 @njit(inline="always", cache=True)
 def _sample_flight(media, m, beta, i, rng):
-    """Free-flight distance in medium m, channel chosen in proportion to the throughput."""
+    """Free-flight distance in medium m, channel chosen in proportion to the throughput; in a tracked medium a
+    tentative one at the majorant."""
+    if media[m, MED_KIND] != HOMOGENEOUS:
+        return tracked_flight(media, m, rng, i)
     b0, b1, b2 = beta[i, 0], beta[i, 1], beta[i, 2]
     s = b0 + b1 + b2
     if s <= 0.0:
@@ -210,7 +219,7 @@ def _nee(i, px, py, pz, kind, nx, ny, nz, dx, dy, dz, phase_kind, g, albedo, med
     diffuse point (kind 1, facing normal n, albedo RGB). Fills the path's shadow slot; True if it did."""
     lights = S.lights
     beta, rng, nscat = st.beta, st.rng, st.nscat
-    sh_active, sh_pos, sh_dir, sh_tmax, sh_C, sh_med, sh_light = sh
+    sh_active, sh_pos, sh_dir, sh_tmax, sh_C, sh_med, sh_light, sh_rng = sh
     nl = lights.shape[0]
     li = min(int(rand(rng, i) * nl), nl - 1)
     u1, u2 = rand(rng, i), rand(rng, i)
@@ -244,6 +253,7 @@ def _nee(i, px, py, pz, kind, nx, ny, nz, dx, dy, dz, phase_kind, g, albedo, med
     sh_tmax[i] = shadow_ray_length(dist, eps)
     sh_med[i] = medium
     sh_light[i] = li
+    sh_rng[i] = rng[i] ^ SHADOW_STREAM
     sh_active[i] = True
     return True
 
@@ -251,7 +261,7 @@ def _nee(i, px, py, pz, kind, nx, ny, nz, dx, dy, dz, phase_kind, g, albedo, med
 @njit(cache=True)
 def _path_advance(i, fresh, S, misc, st, sh, hits):
     """Advance path i until it needs a triangle cast, has emitted a shadow ray, or is dead."""
-    tri_surface, tri_normals, spheres, surfaces, media, lights, grid_params, grid_cells = S
+    tri_surface, tri_normals, spheres, surfaces, media, lights, grid_params, grid_cells, density = S
     pos, dirs, beta, L, rng, status, medium, depth, nscat, tpend, prev_pos, prev_pdf, eta_scale = st
     hit_t, hit_prim, hit_u, hit_v, hit_ng = hits
     eps = misc[M_EPS]
@@ -277,9 +287,27 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
         tsurf = min(ta, tm)
         if m >= 0:
             if tp < tsurf:
-                # ---------------- scattering event
-                _flight_weight(media, m, beta, i, tp, True)
                 px, py, pz = ox + tp * dx, oy + tp * dy, oz + tp * dz
+                if media[m, MED_KIND] != HOMOGENEOUS:
+                    # ---------------- a tentative collision: emission, then a real or a null collision
+                    real, e0, e1, e2 = tentative_collision(media, density, m, beta, i, px, py, pz, rng)
+                    if _order_ok(misc, nscat[i]):
+                        L[i, 0] += e0
+                        L[i, 1] += e1
+                        L[i, 2] += e2
+                    if not real:
+                        if beta[i, 0] == 0.0 and beta[i, 1] == 0.0 and beta[i, 2] == 0.0:
+                            status[i] = DEAD
+                            return
+                        pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
+                        tpend[i] = tracked_flight(media, m, rng, i)
+                        if tm < INF:  # the same ray: its triangle hit is still ahead, tp nearer
+                            hit_t[i] = tm - tp
+                            fresh = True
+                        continue
+                else:
+                    _flight_weight(media, m, beta, i, tp, True)
+                # ---------------- scattering event
                 nscat[i] += 1
                 depth[i] += 1
                 if depth[i] > misc[M_MAXDEPTH] or nscat[i] > misc[M_MAXORDER]:
@@ -305,7 +333,7 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
                     status[i] = CONTINUE
                     return
                 continue
-            if tsurf < INF:
+            if tsurf < INF and media[m, MED_KIND] == HOMOGENEOUS:
                 _flight_weight(media, m, beta, i, tsurf, False)
         # ---------------- escape to the environment
         if tsurf == INF:
@@ -439,8 +467,8 @@ def advance_shadows(active, fresh_flags, S, misc, sh, hits, L):
 
 @njit(cache=True)
 def _shadow_advance(i, k, fresh_flags, S, misc, sh, hits, L):
-    tri_surface, tri_normals, spheres, surfaces, media, lights, grid_params, grid_cells = S
-    sh_active, sh_pos, sh_dir, sh_tmax, sh_C, sh_med, sh_light = sh
+    tri_surface, tri_normals, spheres, surfaces, media, lights, grid_params, grid_cells, density = S
+    sh_active, sh_pos, sh_dir, sh_tmax, sh_C, sh_med, sh_light, sh_rng = sh
     hit_t, hit_prim, hit_u, hit_v, hit_ng = hits
     eps = misc[M_EPS]
     has_mesh = misc[M_HASMESH] > 0.0
@@ -463,8 +491,7 @@ def _shadow_advance(i, k, fresh_flags, S, misc, sh, hits, L):
         m = sh_med[i]
         if t >= tmax:
             if m >= 0 and tmax < INF:
-                for c in range(3):
-                    sh_C[i, c] *= math.exp(-(media[m, MED_SIGMA_A + c] + media[m, MED_SIGMA_S + c]) * tmax)
+                segment_transmittance(media, density, m, ox, oy, oz, dx, dy, dz, tmax, sh_rng, i, sh_C)
             elif m >= 0:
                 sh_C[i, 0] = sh_C[i, 1] = sh_C[i, 2] = 0.0
             L[i, 0] += sh_C[i, 0]
@@ -486,8 +513,7 @@ def _shadow_advance(i, k, fresh_flags, S, misc, sh, hits, L):
             sh_active[i] = False  # blocked
             break
         if m >= 0:
-            for c in range(3):
-                sh_C[i, c] *= math.exp(-(media[m, MED_SIGMA_A + c] + media[m, MED_SIGMA_S + c]) * t)
+            segment_transmittance(media, density, m, ox, oy, oz, dx, dy, dz, t, sh_rng, i, sh_C)
         inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
         gx, gy, gz = gx * inv, gy * inv, gz * inv
         entering = dx * gx + dy * gy + dz * gz < 0.0
@@ -603,7 +629,7 @@ def trace_radiance(bs: BuiltScene, caster: TriangleCaster, origins: np.ndarray, 
 
 def scene_tuple(bs: BuiltScene) -> SceneTables:
     return SceneTables(bs.tri_surface, bs.tri_normals, bs.spheres, bs.surfaces, bs.media, bs.lights,
-                       bs.grid_params, bs.grid_cells)
+                       bs.grid_params, bs.grid_cells, bs.density_data)
 
 
 def render_volpath(bs: BuiltScene, spp: int, seed: int, max_depth: int, rr_depth: int, orders: str | None,
