@@ -37,7 +37,11 @@ def describe(scene: C.Scene, path: Path) -> dict:
         out["media"].append({"label": mi.label, "albedo": alb.tolist(), "mean_free_path": mfp.tolist(),
                              "g": mi.material.g, "phase": mi.material.phase, "sealed": bool(b.media[k, MED_SEALED]),
                              "object_size": obj, "mean_free_paths_across": across.tolist(),
-                             "diffusion_poor": _diffusion_regime(b, k, box)})
+                             "diffusion_poor": _diffusion_regime(b, k, box), "density": _density_text(b, k),
+                             "emission": list(mi.material.emission) if mi.material.emission is not None else None})
+        if mi.material.density is not None or mi.material.emission is not None:
+            out["notes"].append(f"{mi.label}: heterogeneous or emissive: only --method volpath renders it (pbl "
+                                "and dipole take homogeneous, non-emissive media)")
         thickest = float(np.max(across, where=np.isfinite(across), initial=0.0))
         if thickest > 2.0 * extent:
             out["notes"].append(f"{mi.label}: {thickest:.3g} mean free paths across, beyond the "
@@ -51,11 +55,27 @@ DIFFUSION_THICKNESS = 10.0  # reduced mean free paths: a thinner body is far fro
 DIFFUSION_ALBEDO = 0.9  # reduced albedo below which diffusion is a poor model (docs/dipole.md)
 
 
+def _density_text(b, k: int) -> str:
+    """How medium k's density varies, in words ("homogeneous" where it does not)."""
+    from pbvol_cli.geometry.scene_build import GRID_DIMS, MED_FIELD, MED_MAJORANT
+
+    dens = b.medium_info[k].material.density
+    if dens is None:
+        return "homogeneous"
+    if dens.type == "grid":
+        dims = "x".join(str(int(v)) for v in b.media[k, MED_FIELD + GRID_DIMS:MED_FIELD + GRID_DIMS + 3])
+        return f"grid {dims} voxels from {dens.file}, majorant sigma_t {b.media[k, MED_MAJORANT]:.3g}"
+    return (f"exponential {dens.a:g} e^(-{dens.b:g} h) along {list(dens.up)}, majorant sigma_t "
+            f"{b.media[k, MED_MAJORANT]:.3g}")
+
+
 def _diffusion_regime(b, k: int, box) -> str:
     """Whether the dipole's diffusion (--method dipole) suits medium k: "" where it does, else why not (its body
     thin in reduced mean free paths 1/sigma'_t, so light crosses it rather than diffusing back out, or its reduced
     albedo low)."""
     mi = b.medium_info[k]
+    if mi.material.density is not None or mi.material.emission is not None:
+        return ""  # (the dipole does not take it at all: check's note says so)
     sp = (1.0 - mi.material.g) * mi.sigma_s
     tp = mi.sigma_a + sp
     if box is None or not np.any(tp > 0):
@@ -135,6 +155,9 @@ def summarize(scene: C.Scene, path: Path) -> str:
                      f"{d['unit']}, g {m['g']:g}, phase {m['phase']}"
                      + (", sealed (no light reaches it directly)" if m["sealed"] else ""))
         lines.append(f"      object size {m['object_size']:.4g} = {_f(m['mean_free_paths_across'])} mean free paths")
+        if m["density"] != "homogeneous" or m["emission"]:
+            lines.append(f"      density: {m['density']}" + (f"; emission {_f(m['emission'])}" if m["emission"]
+                                                               else ""))
         if m["diffusion_poor"]:
             lines.append(f"      dipole: far from its thick, high-albedo regime ({m['diffusion_poor']})")
     lines += [f"  note: {n}" for n in d["notes"]]
