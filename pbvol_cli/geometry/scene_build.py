@@ -9,8 +9,9 @@ Media, columns MED_*: sigma_a and sigma_s (RGB, 1/scene unit), phase function ki
 "sealed": enclosed only by refracting or opaque surfaces, so that no shadow ray from inside can reach a light and
 next-event estimation is skipped there (it would always be blocked). A heterogeneous or emissive medium also has
 its density kind (MED_KIND: HOMOGENEOUS, GRID, EXPONENTIAL; TRACKED_HOMOGENEOUS for an emissive homogeneous one),
-the majorant of its sigma_t over space and channels (MED_MAJORANT), its emitted radiance (MED_EMIT, RGB) and its
-field's parameters (MED_FIELD + GRID_* or EXP_*); grids' voxels are in BuiltScene.density_data (render/media.py).
+the majorant of its sigma_t over space and channels (MED_MAJORANT), its emitted radiance (MED_EMIT, RGB), its
+field's parameters (MED_FIELD + GRID_* or EXP_*) and a coarse grid of local majorants (MED_MAJ + MAJ_*; none: 0
+cells); grids' voxels and majorant cells are in BuiltScene.density_data (render/media.py).
 
 Spheres (analytic sphere shapes), columns SPH_*: centre, radius, surface row. Camera: see camera_params.
 """
@@ -37,7 +38,11 @@ SURF_COLS = 8
 MED_SIGMA_A, MED_SIGMA_S, MED_PHASE, MED_G, MED_SEALED = 0, 3, 6, 7, 8  # sigma_a, sigma_s: 3 (RGB) each
 MED_KIND, MED_MAJORANT, MED_EMIT, MED_FIELD = 9, 10, 11, 14  # emit: 3 (RGB); field: FIELD_COLS parameters
 FIELD_COLS = 12
-MED_COLS = MED_FIELD + FIELD_COLS
+MED_MAJ = MED_FIELD + FIELD_COLS  # a coarse grid of majorants: box corners, cell counts, offset of its cells
+MAJ_LO, MAJ_HI, MAJ_DIMS, MAJ_OFFSET = 0, 3, 6, 9
+MAJ_COLS = 10
+MAJ_CELLS = 16  # majorant cells per axis at most
+MED_COLS = MED_MAJ + MAJ_COLS
 HOMOGENEOUS, GRID, EXPONENTIAL, TRACKED_HOMOGENEOUS = 0, 1, 2, 3  # MED_KIND values
 # MED_FIELD + ...: a grid's box corners, voxel counts, offset of its voxels (and of its emission voxels, -1: none)
 GRID_LO, GRID_HI, GRID_DIMS, GRID_OFFSET, GRID_EMIT_OFFSET = 0, 3, 6, 9, 10
@@ -306,6 +311,7 @@ def _density_columns(row: np.ndarray, mi: MediumInfo, k: int, path: Path, voxels
             row[f + GRID_EMIT_OFFSET] = sum(len(v) for v in voxels)
             voxels.append(emission.ravel())
         row[MED_MAJORANT] = st * float(grid.max(initial=0.0)) * dens.scale
+        _majorant_grid(row, voxels, dens.bounds, _grid_cell_maxima(grid, dens.scale * st))
         return
     up = np.asarray(dens.up, float) / np.linalg.norm(dens.up)
     if bounds is None:
@@ -322,3 +328,38 @@ def _density_columns(row: np.ndarray, mi: MediumInfo, k: int, path: Path, voxels
     row[f + EXP_A], row[f + EXP_B] = dens.a, dens.b
     row[f + EXP_UP:f + EXP_UP + 3], row[f + EXP_ORIGIN:f + EXP_ORIGIN + 3] = up, dens.origin
     row[MED_MAJORANT] = st * dmax
+    # cells of the shape's box: the density is monotone along up, so a cell's largest is at one of its corners
+    lo, hi = np.asarray(bounds[0], float), np.asarray(bounds[1], float)
+    n = MAJ_CELLS
+    ticks = [np.linspace(lo[c], hi[c], n + 1) for c in range(3)]
+    X, Y, Z = np.meshgrid(*ticks, indexing="ij")
+    h = (np.stack([X, Y, Z], -1) - np.asarray(dens.origin, float)) @ up
+    with np.errstate(over="ignore"):
+        corner = dens.a * np.exp(-dens.b * h)
+    cells = np.max([corner[a:a + n, b:b + n, c:c + n] for a in (0, 1) for b in (0, 1) for c in (0, 1)], axis=0)
+    _majorant_grid(row, voxels, (lo, hi), cells * st)
+
+
+def _grid_cell_maxima(grid: np.ndarray, factor: float) -> np.ndarray:
+    """Upper bounds of a voxel grid's trilinear field over MAJ_CELLS cells per axis (fewer where the grid has fewer
+    voxels): the largest voxel whose centre lies within one voxel of the cell, times factor."""
+    shape = grid.shape
+    n = [min(MAJ_CELLS, k) for k in shape]
+    out = np.zeros(n)
+    edges = [np.linspace(0.0, shape[c], n[c] + 1) for c in range(3)]  # cell edges in voxel units
+    rng = [[(max(int(np.floor(e0 - 0.5)), 0), min(int(np.ceil(e1 - 0.5)), shape[c] - 1))
+            for e0, e1 in zip(edges[c][:-1], edges[c][1:])] for c in range(3)]
+    for i, (a0, a1) in enumerate(rng[0]):
+        for j, (b0, b1) in enumerate(rng[1]):
+            for k, (c0, c1) in enumerate(rng[2]):
+                out[i, j, k] = grid[a0:a1 + 1, b0:b1 + 1, c0:c1 + 1].max()
+    return out * factor
+
+
+def _majorant_grid(row: np.ndarray, voxels: list, bounds, cells: np.ndarray):
+    """Store a grid of majorant cells over the box bounds in the row's MED_MAJ columns and its cells in voxels."""
+    g = MED_MAJ
+    row[g + MAJ_LO:g + MAJ_LO + 3], row[g + MAJ_HI:g + MAJ_HI + 3] = bounds[0], bounds[1]
+    row[g + MAJ_DIMS:g + MAJ_DIMS + 3] = cells.shape
+    row[g + MAJ_OFFSET] = sum(len(v) for v in voxels)
+    voxels.append(np.ascontiguousarray(cells, np.float64).ravel())

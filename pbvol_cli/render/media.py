@@ -6,11 +6,13 @@ A medium's coefficients are its material's sigma_a and sigma_s (RGB) times a den
 emit: the source term sigma_a(x) L_e(x) per unit length, L_e the material's emission (times a second grid where the
 material names one).
 
-Tracking. Tentative collisions are sampled at the scalar majorant mu = max over space and channels of sigma_t (the
-media table's MED_MAJORANT). At each one the emission collected is beta sigma_a L_e / mu; the collision is real
-(scattering) with probability P_s or null with P_n, in proportion to the largest channel of beta sigma_s and beta
-sigma_n (sigma_n = mu - sigma_t), the throughput weighted by sigma_s / (mu P_s) or sigma_n / (mu P_n): unbiased for
-every channel at once (spectral tracking), absorption folded into the weights. A path that reaches a surface needs
+Tracking. Tentative collisions are sampled at a majorant mu >= sigma_t of every channel: piecewise constant over
+a coarse grid of cells (MED_MAJ: each cell's bound, so that the empty parts of a sparse grid cost nothing), or
+one value over the whole medium (MED_MAJORANT, a homogeneous emissive medium). At each one the emission
+collected is beta sigma_a L_e / mu; the collision is real (scattering) with probability P_s or null with P_n, in
+proportion to the largest channel of beta sigma_s and beta sigma_n (sigma_n = mu - sigma_t), the throughput
+weighted by sigma_s / (mu P_s) or sigma_n / (mu P_n): unbiased for every channel at once (spectral tracking),
+absorption folded into the weights. A path that reaches a surface needs
 no weight. Shadow rays take the transmittance by ratio tracking: the product of (1 - sigma_t / mu) over tentative
 collisions. Units: lengths in scene units, coefficients per scene unit.
 """
@@ -18,12 +20,14 @@ collisions. Units: lengths in scene units, coefficients per scene unit.
 from __future__ import annotations
 
 import math
+
 import numpy as np
 from numba import njit
 
 from pbvol_cli.geometry.scene_build import (EXP_A, EXP_B, EXP_ORIGIN, EXP_UP, EXPONENTIAL, GRID, GRID_DIMS,
-                                           GRID_EMIT_OFFSET, GRID_HI, GRID_LO, GRID_OFFSET, MED_EMIT, MED_FIELD,
-                                           MED_KIND, MED_MAJORANT, MED_SIGMA_A, MED_SIGMA_S)
+                                           GRID_EMIT_OFFSET, GRID_HI, GRID_LO, GRID_OFFSET, MAJ_DIMS, MAJ_HI, MAJ_LO,
+                                           MAJ_OFFSET, MED_EMIT, MED_FIELD, MED_KIND, MED_MAJ, MED_MAJORANT,
+                                           MED_SIGMA_A, MED_SIGMA_S)
 from pbvol_cli.physics.sampling import rand
 
 @njit(inline="always", cache=True)
@@ -71,21 +75,89 @@ def density_at(media, data, m, x, y, z):
 
 
 @njit(cache=True)
-def tracked_flight(media, m, rng, i):
-    """A tentative free-flight distance at the majorant (INF where the medium is empty)."""
-    mu = media[m, MED_MAJORANT]
-    u = rand(rng, i)
-    if mu <= 0.0:
-        return np.inf
-    return -math.log(1.0 - u) / mu
+def majorant_flight(media, data, m, ox, oy, oz, dx, dy, dz, tau):
+    """(t, mu): the distance along o + t d (d unit) at which the majorant's optical depth reaches tau, walking the
+    medium's majorant cells (a 3D DDA), and the majorant there; (inf, 0) where the ray leaves the cells first."""
+    g = MED_MAJ
+    nx, ny, nz = int(media[m, g + MAJ_DIMS]), int(media[m, g + MAJ_DIMS + 1]), int(media[m, g + MAJ_DIMS + 2])
+    if nx == 0:
+        mu = media[m, MED_MAJORANT]
+        return (tau / mu, mu) if mu > 0.0 else (np.inf, 0.0)
+    lx, ly, lz = media[m, g + MAJ_LO], media[m, g + MAJ_LO + 1], media[m, g + MAJ_LO + 2]
+    t0, t1 = _slab(ox, dx, lx, media[m, g + MAJ_HI], 0.0, np.inf)
+    t0, t1 = _slab(oy, dy, ly, media[m, g + MAJ_HI + 1], t0, t1)
+    t0, t1 = _slab(oz, dz, lz, media[m, g + MAJ_HI + 2], t0, t1)
+    if t0 >= t1:
+        return np.inf, 0.0
+    wx = (media[m, g + MAJ_HI] - lx) / nx
+    wy = (media[m, g + MAJ_HI + 1] - ly) / ny
+    wz = (media[m, g + MAJ_HI + 2] - lz) / nz
+    cx, sx, tnx, tdx = _dda_axis(ox, dx, lx, wx, nx, t0)
+    cy, sy, tny, tdy = _dda_axis(oy, dy, ly, wy, ny, t0)
+    cz, sz, tnz, tdz = _dda_axis(oz, dz, lz, wz, nz, t0)
+    off = int(media[m, g + MAJ_OFFSET])
+    t = t0
+    while True:
+        t_exit = min(min(tnx, tny), min(tnz, t1))
+        mu = data[off + (cx * ny + cy) * nz + cz]
+        if mu > 0.0 and mu * (t_exit - t) >= tau:
+            return t + tau / mu, mu
+        tau -= mu * max(t_exit - t, 0.0)
+        t = t_exit
+        if t >= t1:
+            return np.inf, 0.0
+        if tnx <= tny and tnx <= tnz:
+            cx += sx
+            tnx += tdx
+            if cx < 0 or cx >= nx:
+                return np.inf, 0.0
+        elif tny <= tnz:
+            cy += sy
+            tny += tdy
+            if cy < 0 or cy >= ny:
+                return np.inf, 0.0
+        else:
+            cz += sz
+            tnz += tdz
+            if cz < 0 or cz >= nz:
+                return np.inf, 0.0
+
+
+@njit(inline="always", cache=True)
+def _slab(o, d, lo, hi, t0, t1):
+    """The ray's parameter interval [t0, t1] narrowed to the slab lo <= o + t d <= hi (empty: t0 >= t1)."""
+    if d != 0.0:
+        a, b = (lo - o) / d, (hi - o) / d
+        return max(t0, min(a, b)), min(t1, max(a, b))
+    if o < lo or o > hi:
+        return 1.0, 0.0
+    return t0, t1
+
+
+@njit(inline="always", cache=True)
+def _dda_axis(o, d, lo, w, n, t0):
+    """A 3D DDA's state on one axis from parameter t0: (cell, step, parameter of the next cell boundary, parameter
+    per cell)."""
+    c = min(max(int((o + t0 * d - lo) / w), 0), n - 1)
+    if d > 0.0:
+        return c, 1, (lo + (c + 1) * w - o) / d, w / d
+    if d < 0.0:
+        return c, -1, (lo + c * w - o) / d, -w / d
+    return c, 0, np.inf, np.inf
 
 
 @njit(cache=True)
-def tentative_collision(media, data, m, beta, i, x, y, z, rng):
-    """A tentative collision of path i at (x, y, z) in medium m. Returns (real, emitted RGB): the emission collected
-    there (beta sigma_a L_e / mu, with beta before this collision's weight) and whether the collision is real
-    (scattering) or null; beta is weighted either way (all zero: the path is absorbed)."""
-    mu = media[m, MED_MAJORANT]
+def tracked_flight(media, data, m, pos, dirs, rng, i):
+    """(t, mu): path i's next tentative collision from pos[i] along dirs[i] and the majorant there."""
+    tau = -math.log(1.0 - rand(rng, i))
+    return majorant_flight(media, data, m, pos[i, 0], pos[i, 1], pos[i, 2], dirs[i, 0], dirs[i, 1], dirs[i, 2], tau)
+
+
+@njit(cache=True)
+def tentative_collision(media, data, m, beta, i, x, y, z, rng, mu):
+    """A tentative collision of path i at (x, y, z) in medium m, sampled at majorant mu. Returns (real, emitted
+    RGB): the emission collected there (beta sigma_a L_e / mu, with beta before this collision's weight) and
+    whether the collision is real (scattering) or null; beta is weighted either way (all zero: absorbed)."""
     d, e = density_at(media, data, m, x, y, z)
     ps = pn = 0.0
     e0 = beta[i, 0] * d * media[m, MED_SIGMA_A] * media[m, MED_EMIT] * e / mu
@@ -120,12 +192,11 @@ def segment_transmittance(media, data, m, ox, oy, oz, dx, dy, dz, t, rng, i, C):
         for c in range(3):
             C[i, c] *= math.exp(-(media[m, MED_SIGMA_A + c] + media[m, MED_SIGMA_S + c]) * t)
         return
-    mu = media[m, MED_MAJORANT]
-    if mu <= 0.0:
-        return
     s = 0.0
     while True:
-        s -= math.log(1.0 - rand(rng, i)) / mu
+        ds, mu = majorant_flight(media, data, m, ox + s * dx, oy + s * dy, oz + s * dz, dx, dy, dz,
+                                 -math.log(1.0 - rand(rng, i)))
+        s += ds
         if s >= t:
             return
         d, _ = density_at(media, data, m, ox + s * dx, oy + s * dy, oz + s * dz)

@@ -59,7 +59,7 @@ M_EPS, M_MAXDEPTH, M_RRDEPTH, M_ORDERS, M_MAXORDER, M_HASMESH, M_NLIGHTS = range
 SceneTables = namedtuple("SceneTables", ["tri_surface", "tri_normals", "spheres", "surfaces", "media", "lights",
                                          "grid_params", "grid_cells", "density"])
 PathState = namedtuple("PathState", ["pos", "dir", "beta", "L", "rng", "status", "medium", "depth", "nscat", "tpend",
-                                     "prev_pos", "prev_pdf", "eta_scale"])
+                                     "prev_pos", "prev_pdf", "eta_scale", "tmaj"])
 ShadowState = namedtuple("ShadowState", ["active", "pos", "dir", "tmax", "contrib", "medium", "light", "rng"])
 SHADOW_STREAM = np.uint64(0xD1B54A32D192ED03)  # a shadow ray's ratio tracking: its path's state xor this
 TriangleHits = namedtuple("TriangleHits", ["t", "prim", "u", "v", "ng"])
@@ -102,6 +102,7 @@ class Paths:
         self.prev_pos = np.zeros((n, 3))
         self.prev_pdf = np.zeros(n)  # solid-angle pdf of the last non-specular sampling; 0 = no MIS
         self.eta_scale = np.zeros(n)
+        self.tmaj = np.zeros(n)  # the majorant at the pending tentative collision (tracked media)
         # shadow-ray slot: one per path and step
         self.sh_active = np.zeros(n, np.bool_)
         self.sh_pos = np.zeros((n, 3))
@@ -120,7 +121,7 @@ class Paths:
 
     def state(self) -> PathState:
         return PathState(self.pos, self.dir, self.beta, self.L, self.rng, self.status, self.medium, self.depth,
-                         self.nscat, self.tpend, self.prev_pos, self.prev_pdf, self.eta_scale)
+                         self.nscat, self.tpend, self.prev_pos, self.prev_pdf, self.eta_scale, self.tmaj)
 
     def shadow(self) -> ShadowState:
         return ShadowState(self.sh_active, self.sh_pos, self.sh_dir, self.sh_tmax, self.sh_C, self.sh_med,
@@ -139,11 +140,12 @@ def _order_ok(misc, n):
 
 
 @njit(inline="always", cache=True)
-def _sample_flight(media, m, beta, i, rng):
-    """Free-flight distance in medium m, channel chosen in proportion to the throughput; in a tracked medium a
-    tentative one at the majorant."""
+def _sample_flight(media, m, beta, i, rng, density, pos, dirs, tmaj):
+    """Free-flight distance in medium m from pos[i] along dirs[i], channel chosen in proportion to the
+    throughput; in a tracked medium a tentative one, its majorant in tmaj[i]."""
     if media[m, MED_KIND] != HOMOGENEOUS:
-        return tracked_flight(media, m, rng, i)
+        t, tmaj[i] = tracked_flight(media, density, m, pos, dirs, rng, i)
+        return t
     b0, b1, b2 = beta[i, 0], beta[i, 1], beta[i, 2]
     s = b0 + b1 + b2
     if s <= 0.0:
@@ -262,7 +264,7 @@ def _nee(i, px, py, pz, kind, nx, ny, nz, dx, dy, dz, phase_kind, g, albedo, med
 def _path_advance(i, fresh, S, misc, st, sh, hits):
     """Advance path i until it needs a triangle cast, has emitted a shadow ray, or is dead."""
     tri_surface, tri_normals, spheres, surfaces, media, lights, grid_params, grid_cells, density = S
-    pos, dirs, beta, L, rng, status, medium, depth, nscat, tpend, prev_pos, prev_pdf, eta_scale = st
+    pos, dirs, beta, L, rng, status, medium, depth, nscat, tpend, prev_pos, prev_pdf, eta_scale, tmaj = st
     hit_t, hit_prim, hit_u, hit_v, hit_ng = hits
     eps = misc[M_EPS]
     has_mesh = misc[M_HASMESH] > 0.0
@@ -290,7 +292,7 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
                 px, py, pz = ox + tp * dx, oy + tp * dy, oz + tp * dz
                 if media[m, MED_KIND] != HOMOGENEOUS:
                     # ---------------- a tentative collision: emission, then a real or a null collision
-                    real, e0, e1, e2 = tentative_collision(media, density, m, beta, i, px, py, pz, rng)
+                    real, e0, e1, e2 = tentative_collision(media, density, m, beta, i, px, py, pz, rng, tmaj[i])
                     if _order_ok(misc, nscat[i]):
                         L[i, 0] += e0
                         L[i, 1] += e1
@@ -300,7 +302,7 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
                             status[i] = DEAD
                             return
                         pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
-                        tpend[i] = tracked_flight(media, m, rng, i)
+                        tpend[i] = _sample_flight(media, m, beta, i, rng, density, pos, dirs, tmaj)
                         if tm < INF:  # the same ray: its triangle hit is still ahead, tp nearer
                             hit_t[i] = tm - tp
                             fresh = True
@@ -328,7 +330,7 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
                     return
                 pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
                 dirs[i, 0], dirs[i, 1], dirs[i, 2] = wx, wy, wz
-                tpend[i] = _sample_flight(media, m, beta, i, rng)
+                tpend[i] = _sample_flight(media, m, beta, i, rng, density, pos, dirs, tmaj)
                 if did_nee:
                     status[i] = CONTINUE
                     return
@@ -384,7 +386,7 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
             medium[i] = medium_beyond(surfaces, s, entering)
             pos[i, 0], pos[i, 1], pos[i, 2] = hx - eps * fgx, hy - eps * fgy, hz - eps * fgz
             if medium[i] >= 0:
-                tpend[i] = _sample_flight(media, medium[i], beta, i, rng)
+                tpend[i] = _sample_flight(media, medium[i], beta, i, rng, density, pos, dirs, tmaj)
             continue
         depth[i] += 1
         if depth[i] > misc[M_MAXDEPTH]:
@@ -438,7 +440,7 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
             status[i] = DEAD
             return
         if medium[i] >= 0:
-            tpend[i] = _sample_flight(media, medium[i], beta, i, rng)
+            tpend[i] = _sample_flight(media, medium[i], beta, i, rng, density, pos, dirs, tmaj)
         if did_nee:
             status[i] = CONTINUE
             return
@@ -533,7 +535,7 @@ def init_paths(n, st):
 
 @njit(cache=True)
 def _init_path(i, st):
-    pos, dirs, beta, L, rng, status, medium, depth, nscat, tpend, prev_pos, prev_pdf, eta_scale = st
+    pos, dirs, beta, L, rng, status, medium, depth, nscat, tpend, prev_pos, prev_pdf, eta_scale, tmaj = st
     beta[i, 0] = beta[i, 1] = beta[i, 2] = 1.0
     L[i, 0] = L[i, 1] = L[i, 2] = 0.0
     status[i] = NEED_CAST
