@@ -419,10 +419,29 @@ class DipoleSettings(Strict):
                            "for its samples in the hierarchical sum (0: every sample summed)")
 
 
+class RaymarchSettings(Strict):
+    """The ray-marching integrator of pbrt-v2 (`--method raymarch`): emission and single scattering from the lights,
+    marched in steps along camera rays, a shadow ray per step marched too. Biased by the step."""
+
+    step: Num = Field(0.0, ge=0, le=MAX_COORD, description="step along camera rays in scene units (0: auto, "
+                      "`step_mfp` mean free paths of the medium at its densest, or its density's majorant cell if "
+                      "that is smaller)")
+    step_mfp: Num = Field(0.5, gt=0, le=100, description="the auto step, in mean free paths 1/sigma_t of the densest "
+                          "channel at the medium's largest density")
+    shadow_step_factor: Num = Field(4.0, ge=1, le=100, description="shadow rays march in steps this many times "
+                                    "longer (pbrt-v2's 4)")
+    max_steps: Int = Field(512, ge=1, le=1 << 16, description="steps per segment at most (a longer segment takes "
+                           "longer steps)")
+    shadows_through_dielectrics: Bool = Field(False, description="shadow rays cross smooth dielectric "
+                                              "boundaries in a straight line, weighted by their Fresnel "
+                                              "transmittance: ignores refraction, right for thin flat glass (a box's "
+                                              "walls); false: they are blocked, as in pbrt-v2")
+
+
 class RenderSettings(Strict):
     """How to render (the command line's options override spp, seed, threads, time_limit and max_depth)."""
 
-    spp: Int = Field(64, ge=1, le=MAX_SPP, description="samples (volpath) or passes (pbl, dipole) per pixel")
+    spp: Int = Field(64, ge=1, le=MAX_SPP, description="samples (volpath) or passes (pbl, dipole, raymarch) per pixel")
     max_depth: Int = Field(1000, ge=1, le=MAX_DEPTH, description="maximum number of scattering events and surface "
                            "bounces")
     seed: Int = Field(0, ge=0, le=MAX_SEED, description="random seed: the same seed and settings give the same image")
@@ -432,6 +451,7 @@ class RenderSettings(Strict):
     lut: LutSettings = Field(LutSettings(), description="[render.lut]")
     pbl: PblSettings = Field(PblSettings(), description="[render.pbl]")
     dipole: DipoleSettings = Field(DipoleSettings(), description="[render.dipole]")
+    raymarch: RaymarchSettings = Field(RaymarchSettings(), description="[render.raymarch]")
 
 
 # --------------------------------------------------------------------------- lights

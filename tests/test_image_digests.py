@@ -74,7 +74,8 @@ def render_digests() -> dict:
             out[config.name] = {}
             heterogeneous = any("density" in m or "emission" in m
                                 for m in tomllib.loads(scene.read_text()).get("materials", {}).values())
-            for method in ("volpath",) if heterogeneous else METHODS:  # (pbl and the dipole refuse them)
+            # pbl and the dipole refuse heterogeneous media; the ray marcher is for them
+            for method in ("volpath", "raymarch") if heterogeneous else METHODS:
                 exr = tmp / f"{config.stem}_{method}.exr"
                 render_scene(scene, exr, RenderOptions(method=method, threads=2, cache_dir=tmp / "cache", quiet=True))
                 h = hashlib.sha256(read_exr(exr)[0].astype("<f4").tobytes())

@@ -40,8 +40,9 @@ def describe(scene: C.Scene, path: Path) -> dict:
                              "diffusion_poor": _diffusion_regime(b, k, box), "density": _density_text(b, k),
                              "emission": list(mi.material.emission) if mi.material.emission is not None else None})
         if mi.material.density is not None or mi.material.emission is not None:
-            out["notes"].append(f"{mi.label}: heterogeneous or emissive: only --method volpath renders it (pbl "
-                                "and dipole take homogeneous, non-emissive media)")
+            out["notes"].append(f"{mi.label}: heterogeneous or emissive: --method volpath renders it, "
+                                "--method raymarch approximates it (emission and single scattering); pbl and "
+                                "dipole take homogeneous, non-emissive media")
         thickest = float(np.max(across, where=np.isfinite(across), initial=0.0))
         if thickest > 2.0 * extent:
             out["notes"].append(f"{mi.label}: {thickest:.3g} mean free paths across, beyond the "

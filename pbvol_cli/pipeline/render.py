@@ -16,7 +16,8 @@ from pbvol_cli.errors import PbvolError, RenderFailed
 from pbvol_cli.physics.lights import LIGHT_RGB
 from pbvol_cli.pipeline.progress import CompileMonitor, available_memory, peak_memory_mb, progress_bar, set_threads
 
-METHODS = ("volpath", "pbl", "dipole")
+METHODS = ("volpath", "pbl", "dipole", "raymarch")
+RAYMARCH_LAYERS = ("volume", "surface")  # the ray marcher's: emission and single scattering, the camera paths' rest
 DIPOLE_LAYERS = ("single", "diffusion", "surface")  # the dipole's image: pbl's single scattering, the diffusion
 # term where camera paths enter a medium, and the camera paths' surfaces
 
@@ -72,7 +73,7 @@ def implausible_pixels(img: np.ndarray, layers: dict | None = None, light_radian
 
 # image-sized buffers per pixel (bytes): volpath's accumulator, the mean and the float32 file; pbl's five layers
 # with their pass accumulators, the pixel statistics, the mean and the float32 layers (docs/pbl.md, memory)
-IMAGE_BYTES_PER_PIXEL = {"volpath": 96, "pbl": 800, "dipole": 900}
+IMAGE_BYTES_PER_PIXEL = {"volpath": 96, "pbl": 800, "dipole": 900, "raymarch": 800}
 
 
 def check_memory(method: str, width: int, height: int, pbl=None, scene_path="", available: int | None = None):
@@ -139,7 +140,7 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
 
     layers, stages = None, {}
     with CompileMonitor(opts.quiet) as compiling:
-        if opts.method in ("pbl", "dipole"):
+        if opts.method in ("pbl", "dipole", "raymarch"):
             img, layers, stats, stages = _render_pbl(scene, built, spp, seed, threads, time_limit, opts,
                                                               scene_path)
             spp_done = stats["spp"]
@@ -205,6 +206,8 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts, scene_path):
     from pbvol_cli.pointbased.camera_pass import COMPONENTS
     from pbvol_cli.pointbased.passes import TABLE_COMPONENTS, render_passes
 
+    if opts.method == "raymarch":
+        return _render_raymarch(scene, built, spp, seed, threads, time_limit, opts)
     homogeneous_media_only(built, opts.method, scene_path)
     pbl = scene.render.pbl
     dipole = opts.method == "dipole"
@@ -261,6 +264,25 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts, scene_path):
     stages["bounced_s"] = timings["bounced_s"]
     stages["peak_memory_mb"] = peak_memory_mb()
     return img, layers, stats, stages
+
+
+def _render_raymarch(scene, built, spp, seed, threads, time_limit, opts):
+    """The ray-marching integrator (render/raymarch.py): the point-based method's camera paths, no light samples,
+    each medium segment marched (emission and single scattering). Layers: volume, surface."""
+    from pbvol_cli.pointbased.camera_pass import render_pbl
+    from pbvol_cli.render.raymarch import RayMarcher
+
+    if opts.components:
+        raise PbvolError("--components: the ray marcher's layers are fixed (volume, surface); it takes no "
+                         "--components")
+    pbl = scene.render.pbl.model_copy(update={"components": (), "surface_paths": 1})  # every path gathers
+    W, H = built.resolution
+    prog, update = progress_bar(opts.quiet, f"raymarch {W}x{H} {spp} spp", "pixel samples")
+    with prog:
+        img, layers, stats = render_pbl(built, lambda p: {}, spp, seed, pbl, threads, update, time_limit=time_limit,
+                                        segment=RayMarcher(built, scene.render.raymarch))
+    layers = {k: layers[k] for k in RAYMARCH_LAYERS}
+    return img, layers, stats, {}
 
 
 def homogeneous_media_only(built, method: str, scene_path):

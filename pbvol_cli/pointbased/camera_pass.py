@@ -47,7 +47,9 @@ Rays = namedtuple("Rays", ["pos", "dir", "beta", "medium", "depth", "rng", "stat
 Hits = namedtuple("Hits", ["t", "surface", "ng", "ns", "light"])
 Children = namedtuple("Children", ["pos", "dir", "beta", "medium", "ok", "state"])
 ShadowRays = namedtuple("ShadowRays", ["pos", "dir", "dist", "contrib", "ok"])
-PathLimits = namedtuple("PathLimits", ["eps", "max_split_depth", "max_diffuse"])
+# shadows_cross: the surfaces the shadow rays pass (0: none, as pbl's; 1: null boundaries, 2: smooth dielectrics too,
+# the ray marcher's), so a light seen past one of them after a diffuse bounce is already counted
+PathLimits = namedtuple("PathLimits", ["eps", "max_split_depth", "max_diffuse", "shadows_cross"])
 
 
 # Numba pitfall: arrays unpacked from a tuple inside a parallel function lose their writes in prange (numba
@@ -177,7 +179,8 @@ def _interact_one(i, surfaces, lights, rays, hits, limits, emit, children, shado
         for c in range(3):
             child_beta[j, c] = beta[i, c] * kt
         child_med[j] = medium_beyond(surfaces, s, entering)
-        child_state[j] = state[i] | 2
+        counted = limits.shadows_cross >= (1 if stype == NULL else 2)  # by the shadow rays, through s
+        child_state[j] = state[i] if counted else state[i] | 2
         child_ok[j] = True
 
 
@@ -274,7 +277,8 @@ def pass_paths(k: np.ndarray, first: np.ndarray):
 
 
 def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads: int, progress=None,
-               bounced_terms=("single", "double", "multiple"), time_limit: float | None = None, entry=None):
+               bounced_terms=("single", "double", "multiple"), time_limit: float | None = None, entry=None,
+               segment=None):
     """Renders spp passes with the settings pbl (config.PblSettings); pass p uses the light samples
     media_for_pass(p) ({medium: (SampleSet of the lights' samples, SampleSet of the bounced samples or None)}).
 
@@ -287,8 +291,13 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     bounced samples (all three make the bounced layer; tests take a subset). time_limit (seconds): no pass starts
     after it. entry: a term evaluated where camera paths enter a medium, a layer of its own (entry.layer):
     entry.for_pass(p).radiance(m, points, eta) is the light leaving the boundary there over the Fresnel
-    transmittance (dipole/hierarchy.DiffusionPasses). Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats;
-    stats["spp"]: the passes rendered, stats["surface_paths"]: the mean paths per pixel of each pass)."""
+    transmittance (dipole/hierarchy.DiffusionPasses). segment: a term evaluated along each segment a camera path
+    travels in a medium, a layer of its own (segment.layer): segment.march(caster, m, pos, dirs, lengths, rng,
+    gather) gives the radiance it adds (zero where not gather) and the transmittance the path goes on with,
+    segment.shadow(caster, pos, dirs, dist, light, medium) the transmittance of the surfaces' shadow rays
+    (render/raymarch.RayMarcher; its through_dielectrics: whether they cross smooth dielectrics); the media then need
+    not be homogeneous. Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats; stats["spp"]: the passes
+    rendered, stats["surface_paths"]: the mean paths per pixel of each pass)."""
     W, H = bs.resolution
     npix = W * H
     settings = gather_settings(pbl, pbl.components)
@@ -296,7 +305,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     settings_b = gather_settings(pbl, bounced_terms)._replace(kmax=pbl.kmax_scattered)
     caster = TriangleCaster(bs.vertices, bs.faces, threads)
     pool = ThreadPoolExecutor(threads) if threads > 1 else None
-    names = (*COMPONENTS, "surface", *((entry.layer,) if entry is not None else ()))
+    names = (*COMPONENTS, "surface", *(t.layer for t in (entry, segment) if t is not None))
     layers = {name: np.zeros((npix, 3)) for name in names}
     stats = PixelStatistics(npix, W)
     ks = []
@@ -333,7 +342,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
             part = slice(c0, min(c0 + chunk, per_pass))
             path_surface = _trace_batch(bs, caster, pool, threads, media_data, seed, done + c0, pixels[part],
                                         samples[part], evm[part], k[pixels[part]], npix, settings, settings_b, pbl,
-                                        acc, entry_p)
+                                        acc, entry_p, segment)
             for ch in range(3):
                 surface_sq[:, ch] += np.bincount(pixels[part], weights=path_surface[:, ch] ** 2, minlength=npix)
             if progress is not None:
@@ -352,7 +361,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
 
 
 def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samples, evm, kpaths, npix, settings,
-                 settings_b, pbl, layers, entry=None):
+                 settings_b, pbl, layers, entry=None, segment=None):
     """Camera paths (sample samples[i] of pixel pixels[i]; `done` paths traced before them in this render), traced to
     the end, added into layers. Path i evaluates the medium where evm[i], its medium terms weighted kpaths[i] (its
     pixel's path count in this pass), and the entry term (render_pbl) where it enters a medium. Returns each path's
@@ -370,7 +379,8 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
     depth = np.zeros(n, np.int64)
     state = np.zeros(n, np.int64)  # see _interact_one
     n_start = np.full((n, 3), np.nan)  # the normal of the surface each ray leaves (NaN: the camera)
-    limits = PathLimits(bs.eps, pbl.max_split_depth, pbl.diffuse_bounces)
+    limits = PathLimits(bs.eps, pbl.max_split_depth, pbl.diffuse_bounces,
+                        0 if segment is None else 2 if segment.through_dielectrics else 1)
     cache, cache_b = cache_settings(pbl), cache_settings(pbl, single=True)  # the bounced light is smooth throughout
     entered = np.zeros(n)  # eta beyond / eta before where a ray has just entered a medium (0: it has not)
     while len(pos):
@@ -407,7 +417,17 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
             if entry is not None:
                 _add_entry_term(entry, int(m), sub[evm[sub] & (entered[sub] > 0)], pos, beta, kpaths, entered,
                                 pixel, npix, layers)
-            beta[sub] *= np.exp(-sum(bs.medium_sigmas(m))[None, :] * tev[sub, None])
+            if segment is not None:
+                sub_rng = rng[sub]
+                radiance, transmittance = segment.march(caster, int(m), pos[sub], dirs[sub], tev[sub], sub_rng,
+                                                        evm[sub])
+                rng[sub] = sub_rng
+                value = radiance * beta[sub] * kpaths[sub, None]
+                for ch in range(3):
+                    layers[segment.layer][:, ch] += np.bincount(pixel[sub], weights=value[:, ch], minlength=npix)
+                beta[sub] *= transmittance
+            else:
+                beta[sub] *= np.exp(-sum(bs.medium_sigmas(m))[None, :] * tev[sub, None])
         for c, name in zip((LAYER_SINGLE, LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_BOUNCED), COMPONENTS):
             for ch in range(3):
                 layers[name][:, ch] += np.bincount(pixel, weights=contrib[:, c, ch], minlength=npix)
@@ -424,7 +444,11 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
         _interact(bs.surfaces, bs.lights, Rays(pos, dirs, beta, medium, depth, rng, state), Hits(tev, surf, ng, ns, li),
                   limits, emit, children, shadows)
         sidx = np.flatnonzero(shadows.ok)
-        if len(sidx):
+        if len(sidx) and segment is not None:  # through null boundaries and the media (heterogeneous ones too)
+            tr = segment.shadow(caster, shadows.pos[sidx], shadows.dir[sidx], shadows.dist[sidx],
+                                sidx % len(bs.lights), medium[sidx // len(bs.lights)])
+            np.add.at(emit, sidx // len(bs.lights), shadows.contrib[sidx] * tr)
+        elif len(sidx):
             vis = sidx[visible(caster, bs, shadows.pos[sidx], shadows.dir[sidx], shadows.dist[sidx],
                                sidx % len(bs.lights))]
             np.add.at(emit, vis // len(bs.lights), shadows.contrib[vis])
