@@ -34,12 +34,11 @@ def kernel_tables(tables: list) -> tuple:
 
 
 def render_passes(built: BuiltScene, samples, tables: dict, pbl, seed: int, spp: int, threads: int, progress=None,
-                  time_limit: float | None = None, first_bounced=None, entry=None, segment=None):
+                  time_limit: float | None = None, first_bounced=None, entry=None):
     """Renders spp passes of the point-based method (no pass starts after time_limit seconds). samples: the cached
     LightSamples of pass 0 (None: no medium); tables: {medium: [MSTable or None] x 3}; pbl: config.PblSettings
     (its components included); first_bounced(m, build): pass 0's bounced samples of medium m, from a cache or
-    build() (None: always built); entry, segment: camera_pass.render_pbl's (the dipole's diffusion term, the ray
-    marcher).
+    build() (None: always built); entry: camera_pass.render_pbl's (the dipole's diffusion term).
     Returns (image, layers, stats, timings): render_pbl's, and the seconds spent on the later passes' light
     samples and on the bounced samples."""
     expanded = {m: kernel_tables(t) for m, t in tables.items()}
@@ -65,7 +64,7 @@ def render_passes(built: BuiltScene, samples, tables: dict, pbl, seed: int, spp:
         return {m: (lit[m], bounced[m]) for m in lit}
 
     image, layers, stats = render_pbl(built, media_for_pass, spp, seed, pbl, threads, progress,
-                                      time_limit=time_limit, entry=entry, segment=segment)
+                                      time_limit=time_limit, entry=entry)
     return image, layers, stats, timings
 
 
