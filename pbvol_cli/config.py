@@ -438,10 +438,36 @@ class RaymarchSettings(Strict):
                                               "walls); false: they are blocked, as in pbrt-v2")
 
 
+class VplSettings(Strict):
+    """Instant multiple scattering with virtual point lights (`--method vpl`; Engelhardt, Novák and Dachsbacher
+    2010): random walks from the lights leave VPLs in the media and on diffuse surfaces, new ones each pass; camera
+    rays gather them at stratified points, on top of the ray marcher's single scattering ([render.raymarch])."""
+
+    walks: Int = Field(256, ge=1, le=10**7, description="random walks from the lights per pass")
+    gather_points: Int = Field(8, ge=1, le=4096, description="points per camera segment in a medium that gather "
+                               "the VPLs (stratified)")
+    walks_per_point: Int = Field(8, ge=1, le=10**6, description="walks whose VPLs each point gathers, chosen at "
+                                 "random (each stands for walks / walks_per_point of them: unbiased)")
+    clamp: Bool = Field(True, description="bound the VPLs' 1/d^2 by 1/clamp_distance^2 (no spikes; loses the light "
+                        "of near VPLs unless compensated)")
+    clamp_distance: Num = Field(0.0, ge=0, le=MAX_COORD, description="clamping radius in scene units (0: auto, "
+                                "clamp_mfp mean free paths of the densest medium)")
+    clamp_mfp: Num = Field(0.5, gt=0, le=1000, description="the auto clamping radius, in mean free paths 1/sigma_t "
+                           "at the densest medium's majorant")
+    compensate: Bool = Field(True, description="add back the clamped light (one compensation vertex per gather "
+                             "point, connected to the VPLs with the clamp of compensation_clamp)")
+    compensation_clamp: Num = Field(0.2, ge=0, le=1, description="the compensation vertices' own clamping radius "
+                                    "over clamp_distance (0: unclamped, unbiased but with rare bright spots; the "
+                                    "seed's GPU variant clamps them a little)")
+    max_depth: Int = Field(256, ge=1, le=MAX_DEPTH, description="scattering events and surface bounces of a walk "
+                           "at most")
+
+
 class RenderSettings(Strict):
     """How to render (the command line's options override spp, seed, threads, time_limit and max_depth)."""
 
-    spp: Int = Field(64, ge=1, le=MAX_SPP, description="samples (volpath) or passes (pbl, dipole, raymarch) per pixel")
+    spp: Int = Field(64, ge=1, le=MAX_SPP, description="samples (volpath) or passes (pbl, dipole, raymarch, vpl) "
+                     "per pixel")
     max_depth: Int = Field(1000, ge=1, le=MAX_DEPTH, description="maximum number of scattering events and surface "
                            "bounces")
     seed: Int = Field(0, ge=0, le=MAX_SEED, description="random seed: the same seed and settings give the same image")
@@ -452,6 +478,7 @@ class RenderSettings(Strict):
     pbl: PblSettings = Field(PblSettings(), description="[render.pbl]")
     dipole: DipoleSettings = Field(DipoleSettings(), description="[render.dipole]")
     raymarch: RaymarchSettings = Field(RaymarchSettings(), description="[render.raymarch]")
+    vpl: VplSettings = Field(VplSettings(), description="[render.vpl]")
 
 
 # --------------------------------------------------------------------------- lights

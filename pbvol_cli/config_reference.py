@@ -178,6 +178,7 @@ def markdown_reference() -> str:
     out += _section("`[render.pbl]`", C.PblSettings, level=3)
     out += _section("`[render.dipole]`", C.DipoleSettings, level=3)
     out += _section("`[render.raymarch]`", C.RaymarchSettings, level=3)
+    out += _section("`[render.vpl]`", C.VplSettings, level=3)
     out += ["## `[[lights]]`", "", "Each light is a table with a `type`; a scene needs at least one.", ""]
     for cls in (C.PointLight, C.DirectionalLight, C.SphereLight, C.QuadLight, C.EnvironmentLight):
         kind = cls.model_fields["type"].annotation.__args__[0]

@@ -100,10 +100,10 @@ def render(
     scene: SceneArg,
     output: Annotated[Path, typer.Option("-o", "--output", help="output image (.exr)")],
     method: Annotated[str, typer.Option(help="volpath (the reference path tracer), pbl (point-based), dipole "
-                                        "(diffusion BSSRDF) or raymarch (emission and single scattering, "
-                                        "marched)")] = "volpath",
+                                        "(diffusion BSSRDF), raymarch (emission and single scattering, marched) "
+                                        "or vpl (raymarch and virtual point lights)")] = "volpath",
     spp: Annotated[Optional[int], typer.Option(min=1, max=MAX_SPP, help="samples (volpath) or passes (pbl, dipole, "
-                                                "raymarch) per pixel (overrides the scene)")] = None,
+                                                "raymarch, vpl) per pixel (overrides the scene)")] = None,
     seed: SeedOpt = None,
     threads: ThreadsOpt = None,
     time_limit: Annotated[Optional[float], typer.Option(min=0.001, help="stop after the pass that crosses this "

@@ -14,6 +14,7 @@ LAYERS = [
     {"geometry"},
     {"multiple_scattering"},
     {"render"},
+    {"vpl"},
     {"pointbased"},
     {"dipole"},
     {"pipeline"},

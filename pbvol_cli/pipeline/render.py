@@ -16,8 +16,9 @@ from pbvol_cli.errors import PbvolError, RenderFailed
 from pbvol_cli.physics.lights import LIGHT_RGB
 from pbvol_cli.pipeline.progress import CompileMonitor, available_memory, peak_memory_mb, progress_bar, set_threads
 
-METHODS = ("volpath", "pbl", "dipole", "raymarch")
+METHODS = ("volpath", "pbl", "dipole", "raymarch", "vpl")
 RAYMARCH_LAYERS = ("volume", "surface")  # the ray marcher's: emission and single scattering, the camera paths' rest
+VPL_LAYERS = ("volume", "vpl", "surface")  # and the VPLs' light
 DIPOLE_LAYERS = ("single", "diffusion", "surface")  # the dipole's image: pbl's single scattering, the diffusion
 # term where camera paths enter a medium, and the camera paths' surfaces
 
@@ -73,7 +74,7 @@ def implausible_pixels(img: np.ndarray, layers: dict | None = None, light_radian
 
 # image-sized buffers per pixel (bytes): volpath's accumulator, the mean and the float32 file; pbl's five layers
 # with their pass accumulators, the pixel statistics, the mean and the float32 layers (docs/pbl.md, memory)
-IMAGE_BYTES_PER_PIXEL = {"volpath": 96, "pbl": 800, "dipole": 900, "raymarch": 800}
+IMAGE_BYTES_PER_PIXEL = {"volpath": 96, "pbl": 800, "dipole": 900, "raymarch": 800, "vpl": 800}
 
 
 def check_memory(method: str, width: int, height: int, pbl=None, scene_path="", available: int | None = None):
@@ -140,7 +141,7 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
 
     layers, stages = None, {}
     with CompileMonitor(opts.quiet) as compiling:
-        if opts.method in ("pbl", "dipole", "raymarch"):
+        if opts.method in ("pbl", "dipole", "raymarch", "vpl"):
             img, layers, stats, stages = _render_pbl(scene, built, spp, seed, threads, time_limit, opts,
                                                               scene_path)
             spp_done = stats["spp"]
@@ -206,7 +207,7 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts, scene_path):
     from pbvol_cli.pointbased.camera_pass import COMPONENTS
     from pbvol_cli.pointbased.passes import TABLE_COMPONENTS, render_passes
 
-    if opts.method == "raymarch":
+    if opts.method in ("raymarch", "vpl"):
         return _render_raymarch(scene, built, spp, seed, threads, time_limit, opts)
     homogeneous_media_only(built, opts.method, scene_path)
     pbl = scene.render.pbl
@@ -267,22 +268,29 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts, scene_path):
 
 
 def _render_raymarch(scene, built, spp, seed, threads, time_limit, opts):
-    """The ray-marching integrator (render/raymarch.py): the point-based method's camera paths, no light samples,
-    each medium segment marched (emission and single scattering). Layers: volume, surface."""
+    """The ray-marching integrator (render/raymarch.py) or, for opts.method "vpl", it and the VPLs (vpl/gather.py):
+    the point-based method's camera paths, no light samples, each medium segment marched. Layers: RAYMARCH_LAYERS,
+    VPL_LAYERS."""
     from pbvol_cli.pointbased.camera_pass import render_pbl
     from pbvol_cli.render.raymarch import RayMarcher
 
     if opts.components:
-        raise PbvolError("--components: the ray marcher's layers are fixed (volume, surface); it takes no "
-                         "--components")
+        names = RAYMARCH_LAYERS if opts.method == "raymarch" else VPL_LAYERS
+        raise PbvolError(f"--components: the {opts.method} method's layers are fixed ({', '.join(names)}); it takes "
+                         "no --components")
     pbl = scene.render.pbl.model_copy(update={"components": (), "surface_paths": 1})  # every path gathers
+    if opts.method == "vpl":
+        from pbvol_cli.vpl.gather import VPLGather
+
+        segment, names = VPLGather(built, scene.render.raymarch, scene.render.vpl, seed), VPL_LAYERS
+    else:
+        segment, names = RayMarcher(built, scene.render.raymarch), RAYMARCH_LAYERS
     W, H = built.resolution
-    prog, update = progress_bar(opts.quiet, f"raymarch {W}x{H} {spp} spp", "pixel samples")
+    prog, update = progress_bar(opts.quiet, f"{opts.method} {W}x{H} {spp} spp", "pixel samples")
     with prog:
         img, layers, stats = render_pbl(built, lambda p: {}, spp, seed, pbl, threads, update, time_limit=time_limit,
-                                        segment=RayMarcher(built, scene.render.raymarch))
-    layers = {k: layers[k] for k in RAYMARCH_LAYERS}
-    return img, layers, stats, {}
+                                        segment=segment)
+    return img, {k: layers[k] for k in names}, stats, {}
 
 
 def homogeneous_media_only(built, method: str, scene_path):

@@ -292,8 +292,9 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     after it. entry: a term evaluated where camera paths enter a medium, a layer of its own (entry.layer):
     entry.for_pass(p).radiance(m, points, eta) is the light leaving the boundary there over the Fresnel
     transmittance (dipole/hierarchy.DiffusionPasses). segment: a term evaluated along each segment a camera path
-    travels in a medium, a layer of its own (segment.layer): segment.march(caster, m, pos, dirs, lengths, rng,
-    gather) gives the radiance it adds (zero where not gather) and the transmittance the path goes on with,
+    travels in a medium, layers of its own (segment.layers), for pass p segment.for_pass(p, caster):
+    .march(caster, m, pos, dirs, lengths, rng, gather) gives the radiance it adds to each layer (zero where not
+    gather) and the transmittance the path goes on with,
     segment.shadow(caster, pos, dirs, dist, light, medium) the transmittance of the surfaces' shadow rays
     (render/raymarch.RayMarcher; its through_dielectrics: whether they cross smooth dielectrics); the media then need
     not be homogeneous. Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats; stats["spp"]: the passes
@@ -305,7 +306,8 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     settings_b = gather_settings(pbl, bounced_terms)._replace(kmax=pbl.kmax_scattered)
     caster = TriangleCaster(bs.vertices, bs.faces, threads)
     pool = ThreadPoolExecutor(threads) if threads > 1 else None
-    names = (*COMPONENTS, "surface", *(t.layer for t in (entry, segment) if t is not None))
+    names = (*COMPONENTS, "surface", *((entry.layer,) if entry is not None else ()),
+             *(segment.layers if segment is not None else ()))
     layers = {name: np.zeros((npix, 3)) for name in names}
     stats = PixelStatistics(npix, W)
     ks = []
@@ -327,6 +329,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         ks.append(float(k.mean()))
         media_data = media_for_pass(p)
         entry_p = entry.for_pass(p) if entry is not None else None
+        segment_p = segment.for_pass(p, caster) if segment is not None else None
         # which of the pixel's k paths evaluates the medium in this pass (k = 1: every path)
         draw = np.random.default_rng([seed, p, 0x5EC7])
         if k.min() == k.max():
@@ -342,7 +345,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
             part = slice(c0, min(c0 + chunk, per_pass))
             path_surface = _trace_batch(bs, caster, pool, threads, media_data, seed, done + c0, pixels[part],
                                         samples[part], evm[part], k[pixels[part]], npix, settings, settings_b, pbl,
-                                        acc, entry_p, segment)
+                                        acc, entry_p, segment_p)
             for ch in range(3):
                 surface_sq[:, ch] += np.bincount(pixels[part], weights=path_surface[:, ch] ** 2, minlength=npix)
             if progress is not None:
@@ -419,12 +422,13 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                                 pixel, npix, layers)
             if segment is not None:
                 sub_rng = rng[sub]
-                radiance, transmittance = segment.march(caster, int(m), pos[sub], dirs[sub], tev[sub], sub_rng,
-                                                        evm[sub])
+                radiances, transmittance = segment.march(caster, int(m), pos[sub], dirs[sub], tev[sub], sub_rng,
+                                                         evm[sub])
                 rng[sub] = sub_rng
-                value = radiance * beta[sub] * kpaths[sub, None]
-                for ch in range(3):
-                    layers[segment.layer][:, ch] += np.bincount(pixel[sub], weights=value[:, ch], minlength=npix)
+                for name, radiance in zip(segment.layers, radiances):
+                    value = radiance * beta[sub] * kpaths[sub, None]
+                    for ch in range(3):
+                        layers[name][:, ch] += np.bincount(pixel[sub], weights=value[:, ch], minlength=npix)
                 beta[sub] *= transmittance
             else:
                 beta[sub] *= np.exp(-sum(bs.medium_sigmas(m))[None, :] * tev[sub, None])

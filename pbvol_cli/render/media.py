@@ -24,7 +24,7 @@ import math
 import numpy as np
 from numba import njit
 
-from pbvol_cli.geometry.scene_build import (EXP_A, EXP_B, EXP_ORIGIN, EXP_UP, EXPONENTIAL, GRID, GRID_DIMS,
+from pbvol_cli.geometry.scene_build import (EXP_A, EXP_B, EXP_ORIGIN, EXP_UP, EXPONENTIAL, GRID, GRID_DIMS, HOMOGENEOUS,
                                            GRID_EMIT_OFFSET, GRID_HI, GRID_LO, GRID_OFFSET, MAJ_DIMS, MAJ_HI, MAJ_LO,
                                            MAJ_OFFSET, MED_EMIT, MED_FIELD, MED_KIND, MED_MAJ, MED_MAJORANT,
                                            MED_SIGMA_A, MED_SIGMA_S)
@@ -206,3 +206,53 @@ def segment_transmittance(media, data, m, ox, oy, oz, dx, dy, dz, t, rng, i, C):
             alive = alive or C[i, c] != 0.0
         if not alive:
             return
+
+
+@njit(inline="always", cache=True)
+def free_flight(media, m, beta, i, rng, density, pos, dirs, tmaj):
+    """Free-flight distance in medium m from pos[i] along dirs[i], channel chosen in proportion to the
+    throughput; in a tracked medium a tentative one, its majorant in tmaj[i]."""
+    if media[m, MED_KIND] != HOMOGENEOUS:
+        t, tmaj[i] = tracked_flight(media, density, m, pos, dirs, rng, i)
+        return t
+    b0, b1, b2 = beta[i, 0], beta[i, 1], beta[i, 2]
+    s = b0 + b1 + b2
+    if s <= 0.0:
+        return np.inf
+    u = rand(rng, i) * s
+    c = 0 if u < b0 else (1 if u < b0 + b1 else 2)
+    st = media[m, MED_SIGMA_A + c] + media[m, MED_SIGMA_S + c]
+    if st <= 0.0:
+        return np.inf
+    return -math.log(1.0 - rand(rng, i)) / st
+
+
+@njit(inline="always", cache=True)
+def flight_weight(media, m, beta, i, t, scatter):
+    """Apply the spectral-MIS weight of a flight of length t ending in a scattering event or not."""
+    b0, b1, b2 = beta[i, 0], beta[i, 1], beta[i, 2]
+    s = b0 + b1 + b2
+    pdf = 0.0
+    tr0 = tr1 = tr2 = 0.0
+    for c in range(3):
+        st = media[m, MED_SIGMA_A + c] + media[m, MED_SIGMA_S + c]
+        tr = math.exp(-st * t)
+        pc = (b0 if c == 0 else (b1 if c == 1 else b2)) / s
+        pdf += pc * (st * tr if scatter else tr)
+        if c == 0:
+            tr0 = tr
+        elif c == 1:
+            tr1 = tr
+        else:
+            tr2 = tr
+    if pdf <= 0.0:
+        beta[i, 0] = beta[i, 1] = beta[i, 2] = 0.0
+        return
+    if scatter:
+        beta[i, 0] *= media[m, MED_SIGMA_S] * tr0 / pdf
+        beta[i, 1] *= media[m, MED_SIGMA_S + 1] * tr1 / pdf
+        beta[i, 2] *= media[m, MED_SIGMA_S + 2] * tr2 / pdf
+    else:
+        beta[i, 0] *= tr0 / pdf
+        beta[i, 1] *= tr1 / pdf
+        beta[i, 2] *= tr2 / pdf

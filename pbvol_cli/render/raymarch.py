@@ -103,7 +103,7 @@ def _march_one(i, media, data, lights, m, pos, dirs, tlen, gather, first, count,
 
 
 @njit(cache=True)
-def _optical_depth(media, data, m, ox, oy, oz, dx, dy, dz, length, step, max_steps):
+def optical_depth(media, data, m, ox, oy, oz, dx, dy, dz, length, step, max_steps):
     """The density integrated over [0, length) of o + s d in medium m (multiply by sigma_t), marched at the
     midpoints of steps of `step` (at most max_steps of them)."""
     n = min(max(1, int(math.ceil(length / step))), max_steps)
@@ -140,7 +140,7 @@ def _shadow_step(media, data, surfaces, eps, alive, pos, dirs, rest, med, t, sur
             if not math.isfinite(length):
                 out[j, 0] = out[j, 1] = out[j, 2] = 0.0
                 continue
-            tau = _optical_depth(media, data, m, pos[j, 0], pos[j, 1], pos[j, 2], dirs[j, 0], dirs[j, 1], dirs[j, 2],
+            tau = optical_depth(media, data, m, pos[j, 0], pos[j, 1], pos[j, 2], dirs[j, 0], dirs[j, 1], dirs[j, 2],
                                  length, steps[m], max_steps)
             for c in range(3):
                 out[j, c] *= math.exp(-tau * (media[m, MED_SIGMA_A + c] + media[m, MED_SIGMA_S + c]))
@@ -186,10 +186,10 @@ def auto_steps(media: np.ndarray, step: float, step_mfp: float) -> np.ndarray:
 
 class RayMarcher:
     """The segment term of pointbased/camera_pass.render_pbl for `--method raymarch`: march() gives each camera
-    segment's emitted and singly scattered radiance and its marched transmittance; shadow() the marched
-    transmittance of the surfaces' shadow rays. settings: config.RaymarchSettings."""
+    segment's emitted and singly scattered radiance (layer "volume") and its marched transmittance; shadow() the
+    marched transmittance of the surfaces' shadow rays. settings: config.RaymarchSettings."""
 
-    layer = "volume"
+    layers = ("volume",)
 
     def __init__(self, built, settings):
         self.built = built
@@ -198,9 +198,14 @@ class RayMarcher:
         self.max_steps = int(settings.max_steps)
         self.through_dielectrics = bool(settings.shadows_through_dielectrics)
 
+    def for_pass(self, p: int, caster):
+        """The term for pass p (the ray marcher has no per-pass state)."""
+        return self
+
     def march(self, caster, m: int, pos, dirs, tlen, rng, gather):
         """Segments of medium m from pos along dirs (unit) of length tlen; gather: which collect light (the others
-        are only attenuated). rng: their random streams, advanced. Returns (radiance (n, 3), transmittance (n, 3))."""
+        are only attenuated). rng: their random streams, advanced. Returns ((radiance (n, 3),) one per layer,
+        transmittance (n, 3))."""
         bs = self.built
         n = len(pos)
         count = np.clip(np.ceil(tlen / self.steps[m]), 1, self.max_steps).astype(np.int64)
@@ -220,7 +225,7 @@ class RayMarcher:
                                         np.full(len(live), m, np.int64))
             for ch in range(3):
                 emitted[:, ch] += np.bincount(seg, weights=c[:, ch], minlength=n)
-        return emitted, trans
+        return (emitted,), trans
 
     def shadow(self, caster, pos, dirs, dist, target, medium) -> np.ndarray:
         """Transmittance (n, 3) of shadow rays from pos along dirs toward light target at dist, starting in medium

@@ -37,7 +37,7 @@ from numba import njit, prange
 from pbvol_cli.geometry.distance_grid import mesh_distance_bound
 from pbvol_cli.geometry.raycast import TriangleCaster
 from pbvol_cli.geometry.scene_build import (DIELECTRIC, HOMOGENEOUS, MED_G, MED_KIND, MED_PHASE, MED_SEALED,
-                                           MED_SIGMA_A, MED_SIGMA_S, MIRROR, NULL, SPH_CENTER, SPH_RADIUS, SPH_SURFACE,
+                                           MED_SIGMA_A, MIRROR, NULL, SPH_CENTER, SPH_RADIUS, SPH_SURFACE,
                                            SURF_ALBEDO, SURF_TYPE, BuiltScene)
 from pbvol_cli.jit import as_runtime
 from pbvol_cli.physics.fresnel import reflect, refract
@@ -46,7 +46,7 @@ from pbvol_cli.physics.phase import phase_eval, phase_sample
 from pbvol_cli.physics.sampling import cosine_hemisphere, power_heuristic, rand, seed_state
 from pbvol_cli.render.camera import generate_camera_rays
 from pbvol_cli.render.interfaces import dielectric_fresnel, incident_side, indices, medium_beyond, shadow_ray_length
-from pbvol_cli.render.media import segment_transmittance, tentative_collision, tracked_flight
+from pbvol_cli.render.media import flight_weight, free_flight, segment_transmittance, tentative_collision
 from pbvol_cli.geometry.intersect import analytic_hit, mesh_shading_normal
 
 DEAD, NEED_CAST, CONTINUE = 0, 1, 2
@@ -137,56 +137,6 @@ class Paths:
 @njit(inline="always", cache=True)
 def _order_ok(misc, n):
     return (int(misc[M_ORDERS]) >> min(n, 3)) & 1
-
-
-@njit(inline="always", cache=True)
-def _sample_flight(media, m, beta, i, rng, density, pos, dirs, tmaj):
-    """Free-flight distance in medium m from pos[i] along dirs[i], channel chosen in proportion to the
-    throughput; in a tracked medium a tentative one, its majorant in tmaj[i]."""
-    if media[m, MED_KIND] != HOMOGENEOUS:
-        t, tmaj[i] = tracked_flight(media, density, m, pos, dirs, rng, i)
-        return t
-    b0, b1, b2 = beta[i, 0], beta[i, 1], beta[i, 2]
-    s = b0 + b1 + b2
-    if s <= 0.0:
-        return INF
-    u = rand(rng, i) * s
-    c = 0 if u < b0 else (1 if u < b0 + b1 else 2)
-    st = media[m, MED_SIGMA_A + c] + media[m, MED_SIGMA_S + c]
-    if st <= 0.0:
-        return INF
-    return -math.log(1.0 - rand(rng, i)) / st
-
-
-@njit(inline="always", cache=True)
-def _flight_weight(media, m, beta, i, t, scatter):
-    """Apply the spectral-MIS weight of a flight of length t ending in a scattering event or not."""
-    b0, b1, b2 = beta[i, 0], beta[i, 1], beta[i, 2]
-    s = b0 + b1 + b2
-    pdf = 0.0
-    tr0 = tr1 = tr2 = 0.0
-    for c in range(3):
-        st = media[m, MED_SIGMA_A + c] + media[m, MED_SIGMA_S + c]
-        tr = math.exp(-st * t)
-        pc = (b0 if c == 0 else (b1 if c == 1 else b2)) / s
-        pdf += pc * (st * tr if scatter else tr)
-        if c == 0:
-            tr0 = tr
-        elif c == 1:
-            tr1 = tr
-        else:
-            tr2 = tr
-    if pdf <= 0.0:
-        beta[i, 0] = beta[i, 1] = beta[i, 2] = 0.0
-        return
-    if scatter:
-        beta[i, 0] *= media[m, MED_SIGMA_S] * tr0 / pdf
-        beta[i, 1] *= media[m, MED_SIGMA_S + 1] * tr1 / pdf
-        beta[i, 2] *= media[m, MED_SIGMA_S + 2] * tr2 / pdf
-    else:
-        beta[i, 0] *= tr0 / pdf
-        beta[i, 1] *= tr1 / pdf
-        beta[i, 2] *= tr2 / pdf
 
 
 @njit(inline="always", cache=True)
@@ -302,13 +252,13 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
                             status[i] = DEAD
                             return
                         pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
-                        tpend[i] = _sample_flight(media, m, beta, i, rng, density, pos, dirs, tmaj)
+                        tpend[i] = free_flight(media, m, beta, i, rng, density, pos, dirs, tmaj)
                         if tm < INF:  # the same ray: its triangle hit is still ahead, tp nearer
                             hit_t[i] = tm - tp
                             fresh = True
                         continue
                 else:
-                    _flight_weight(media, m, beta, i, tp, True)
+                    flight_weight(media, m, beta, i, tp, True)
                 # ---------------- scattering event
                 nscat[i] += 1
                 depth[i] += 1
@@ -330,13 +280,13 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
                     return
                 pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
                 dirs[i, 0], dirs[i, 1], dirs[i, 2] = wx, wy, wz
-                tpend[i] = _sample_flight(media, m, beta, i, rng, density, pos, dirs, tmaj)
+                tpend[i] = free_flight(media, m, beta, i, rng, density, pos, dirs, tmaj)
                 if did_nee:
                     status[i] = CONTINUE
                     return
                 continue
             if tsurf < INF and media[m, MED_KIND] == HOMOGENEOUS:
-                _flight_weight(media, m, beta, i, tsurf, False)
+                flight_weight(media, m, beta, i, tsurf, False)
         # ---------------- escape to the environment
         if tsurf == INF:
             for li in range(nl):
@@ -386,7 +336,7 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
             medium[i] = medium_beyond(surfaces, s, entering)
             pos[i, 0], pos[i, 1], pos[i, 2] = hx - eps * fgx, hy - eps * fgy, hz - eps * fgz
             if medium[i] >= 0:
-                tpend[i] = _sample_flight(media, medium[i], beta, i, rng, density, pos, dirs, tmaj)
+                tpend[i] = free_flight(media, medium[i], beta, i, rng, density, pos, dirs, tmaj)
             continue
         depth[i] += 1
         if depth[i] > misc[M_MAXDEPTH]:
@@ -440,7 +390,7 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
             status[i] = DEAD
             return
         if medium[i] >= 0:
-            tpend[i] = _sample_flight(media, medium[i], beta, i, rng, density, pos, dirs, tmaj)
+            tpend[i] = free_flight(media, medium[i], beta, i, rng, density, pos, dirs, tmaj)
         if did_nee:
             status[i] = CONTINUE
             return

@@ -1,0 +1,116 @@
+"""Sampling the lights' emission for light paths: a start point and a direction of travel with the flux they carry.
+
+For each light type, a sample (x, w) with density p(x) p(w | x) carries the flux weight L_e(x, w) cos / (p(x) p(w))
+(W, RGB): summed over N samples and divided by N it estimates any integral of the emitted light. Lights far away or
+at infinity (directional, environment) are sampled on a disc of the scene's bounding sphere (centre c, radius R)
+facing the direction of travel, started outside it. Radiance and intensity as in physics/lights.py.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from pbvol_cli.physics.lights import (DIRECTIONAL, LIGHT_AREA, LIGHT_E1, LIGHT_E2, LIGHT_P0, LIGHT_RADIUS,
+                                      LIGHT_RGB, LIGHT_TWO_SIDED, LIGHT_TYPE, POINT, QUAD, SPHERE)
+from pbvol_cli.physics.sampling import coordinate_system, cosine_around, rand, uniform_sphere
+
+
+def light_powers(lights: np.ndarray, radius: float) -> np.ndarray:
+    """Each light's emitted flux (W, the mean of its RGB), those at infinity through a disc of the given radius:
+    the probabilities with which light paths choose them (any positive choice is unbiased; this one is
+    efficient)."""
+    out = np.zeros(len(lights))
+    for li, row in enumerate(lights):
+        e = float(np.mean(row[LIGHT_RGB:LIGHT_RGB + 3]))
+        kind = int(row[LIGHT_TYPE])
+        if kind == POINT:
+            out[li] = 4 * math.pi * e
+        elif kind in (SPHERE, QUAD):
+            out[li] = math.pi * e * row[LIGHT_AREA] * (2.0 if row[LIGHT_TWO_SIDED] > 0 else 1.0)
+        elif kind == DIRECTIONAL:
+            out[li] = e * math.pi * radius ** 2
+        else:
+            out[li] = e * 4 * math.pi * math.pi * radius ** 2
+    return out
+
+
+@njit(cache=True)
+def _disc_point(cx, cy, cz, radius, dx, dy, dz, u1, u2):
+    """A uniform point on the disc of the given radius facing direction d, centred one radius upstream of c."""
+    s, b = coordinate_system(dx, dy, dz)
+    tx, ty, tz, bx, by, bz = s[0], s[1], s[2], b[0], b[1], b[2]
+    r = radius * math.sqrt(u1)
+    a = 2.0 * math.pi * u2
+    ca, sa = r * math.cos(a), r * math.sin(a)
+    return (cx - radius * dx + ca * tx + sa * bx, cy - radius * dy + ca * ty + sa * by,
+            cz - radius * dz + ca * tz + sa * bz)
+
+
+@njit(cache=True)
+def emit_one(lights, li, cx, cy, cz, radius, rng, i):
+    """A light-path start on light li: (x, y, z, dx, dy, dz, Wr, Wg, Wb), the flux weight W as in the module's
+    docstring (not yet divided by the light's choice probability)."""
+    kind = int(lights[li, LIGHT_TYPE])
+    Lr, Lg, Lb = lights[li, LIGHT_RGB], lights[li, LIGHT_RGB + 1], lights[li, LIGHT_RGB + 2]
+    u1, u2, u3, u4 = rand(rng, i), rand(rng, i), rand(rng, i), rand(rng, i)
+    if kind == POINT:
+        w = uniform_sphere(u1, u2)
+        s = 4.0 * math.pi
+        return lights[li, LIGHT_P0], lights[li, LIGHT_P0 + 1], lights[li, LIGHT_P0 + 2], w[0], w[1], w[2], \
+            Lr * s, Lg * s, Lb * s
+    if kind == SPHERE:
+        n = uniform_sphere(u1, u2)
+        rad = lights[li, LIGHT_RADIUS]
+        w = cosine_around(u3, u4, n[0], n[1], n[2])
+        s = math.pi * lights[li, LIGHT_AREA]
+        eps = 1e-7 * rad
+        return (lights[li, LIGHT_P0] + (rad + eps) * n[0], lights[li, LIGHT_P0 + 1] + (rad + eps) * n[1],
+                lights[li, LIGHT_P0 + 2] + (rad + eps) * n[2], w[0], w[1], w[2], Lr * s, Lg * s, Lb * s)
+    if kind == QUAD:
+        e1x, e1y, e1z = lights[li, LIGHT_E1], lights[li, LIGHT_E1 + 1], lights[li, LIGHT_E1 + 2]
+        e2x, e2y, e2z = lights[li, LIGHT_E2], lights[li, LIGHT_E2 + 1], lights[li, LIGHT_E2 + 2]
+        nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+        inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
+        nx, ny, nz = nx * inv, ny * inv, nz * inv
+        s = math.pi * lights[li, LIGHT_AREA]
+        if lights[li, LIGHT_TWO_SIDED] > 0.0:
+            s *= 2.0
+            if u3 < 0.5:
+                nx, ny, nz = -nx, -ny, -nz
+                u3 = 2.0 * u3
+            else:
+                u3 = 2.0 * u3 - 1.0
+        w = cosine_around(u3, u4, nx, ny, nz)
+        x = lights[li, LIGHT_P0] + u1 * e1x + u2 * e2x
+        y = lights[li, LIGHT_P0 + 1] + u1 * e1y + u2 * e2y
+        z = lights[li, LIGHT_P0 + 2] + u1 * e1z + u2 * e2z
+        return x, y, z, w[0], w[1], w[2], Lr * s, Lg * s, Lb * s
+    if kind == DIRECTIONAL:
+        dx, dy, dz = lights[li, LIGHT_E1], lights[li, LIGHT_E1 + 1], lights[li, LIGHT_E1 + 2]
+        x, y, z = _disc_point(cx, cy, cz, radius, dx, dy, dz, u1, u2)
+        s = math.pi * radius * radius
+        return x, y, z, dx, dy, dz, Lr * s, Lg * s, Lb * s
+    # ENVIRONMENT: radiance from every direction: a uniform direction of travel, through a disc facing it
+    w = uniform_sphere(u1, u2)
+    x, y, z = _disc_point(cx, cy, cz, radius, w[0], w[1], w[2], u3, u4)
+    s = 4.0 * math.pi * math.pi * radius * radius
+    return x, y, z, w[0], w[1], w[2], Lr * s, Lg * s, Lb * s
+
+
+@njit(parallel=True, cache=True)
+def emit(lights, cdf, cx, cy, cz, radius, rng, pos, dirs, flux):
+    """Light-path starts for every i: a light chosen by the cumulative probabilities cdf, then emit_one; flux
+    divided by the choice's probability."""
+    for i in prange(pos.shape[0]):
+        u = rand(rng, i)
+        li = 0
+        while li < cdf.shape[0] - 1 and u >= cdf[li]:
+            li += 1
+        p = cdf[li] - (cdf[li - 1] if li > 0 else 0.0)
+        x, y, z, dx, dy, dz, wr, wg, wb = emit_one(lights, li, cx, cy, cz, radius, rng, i)
+        pos[i, 0], pos[i, 1], pos[i, 2] = x, y, z
+        dirs[i, 0], dirs[i, 1], dirs[i, 2] = dx, dy, dz
+        flux[i, 0], flux[i, 1], flux[i, 2] = wr / p, wg / p, wb / p
