@@ -23,7 +23,8 @@ import tomli_w
 
 ROOT = Path(__file__).resolve().parents[1]
 DIGESTS = ROOT / "tests" / "data" / "image_digests.json"
-METHODS = ("volpath", "pbl", "dipole")
+METHODS = ("volpath", "pbl", "dipole", "vpl")
+HETEROGENEOUS_METHODS = ("volpath", "raymarch", "vpl")  # pbl and the dipole refuse heterogeneous media
 # small enough for the default test run: 20x20 pixels, 2 samples, few light samples, coarse tables
 OVERRIDES = {"resolution": [20, 20], "spp": 2, "seed": 3, "surface_samples": 1500, "bounce_samples": 200,
              "particles": 1000, "irradiance_samples": 2000}
@@ -74,8 +75,7 @@ def render_digests() -> dict:
             out[config.name] = {}
             heterogeneous = any("density" in m or "emission" in m
                                 for m in tomllib.loads(scene.read_text()).get("materials", {}).values())
-            # pbl and the dipole refuse heterogeneous media; the ray marcher is for them
-            for method in ("volpath", "raymarch") if heterogeneous else METHODS:
+            for method in HETEROGENEOUS_METHODS if heterogeneous else METHODS:
                 exr = tmp / f"{config.stem}_{method}.exr"
                 render_scene(scene, exr, RenderOptions(method=method, threads=2, cache_dir=tmp / "cache", quiet=True))
                 h = hashlib.sha256(read_exr(exr)[0].astype("<f4").tobytes())
