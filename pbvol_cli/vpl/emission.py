@@ -1,9 +1,10 @@
 """Sampling the lights' emission for light paths: a start point and a direction of travel with the flux they carry.
 
 For each light type, a sample (x, w) with density p(x) p(w | x) carries the flux weight L_e(x, w) cos / (p(x) p(w))
-(W, RGB): summed over N samples and divided by N it estimates any integral of the emitted light. Lights far away or
-at infinity (directional, environment) are sampled on a disc of the scene's bounding sphere (centre c, radius R)
-facing the direction of travel, started outside it. Radiance and intensity as in physics/lights.py.
+(W, RGB): summed over N samples and divided by N it estimates any integral of the emitted light. Lights at infinity
+(directional, environment) are started on a plane upstream of the scene, on a disc of the scene's bounding sphere
+or (half of them) of the media's, so that walks meet the media without losing the rest. Radiance and intensity as
+in physics/lights.py.
 """
 
 from __future__ import annotations
@@ -38,21 +39,42 @@ def light_powers(lights: np.ndarray, radius: float) -> np.ndarray:
 
 
 @njit(cache=True)
-def _disc_point(cx, cy, cz, radius, dx, dy, dz, u1, u2):
-    """A uniform point on the disc of the given radius facing direction d, centred one radius upstream of c."""
+def _disc_start(cx, cy, cz, radius, mx, my, mz, m_radius, m_share, dx, dy, dz, u0, u1, u2):
+    """A start for a ray of direction d from a light at infinity, on the plane P tangent to the scene's bounding
+    sphere (centre c, radius) upstream of it: with probability m_share uniform on the disc of the media's bounding
+    sphere (centre m, m_radius) projected onto P, otherwise uniform on the scene's disc. Returns (x, y, z, area):
+    area = 1 / (the start's density per unit area of P), the mixture's (every ray that meets the scene has a
+    positive density: unbiased; most walks meet the media)."""
     s, b = coordinate_system(dx, dy, dz)
-    tx, ty, tz, bx, by, bz = s[0], s[1], s[2], b[0], b[1], b[2]
-    r = radius * math.sqrt(u1)
+    px, py, pz = cx - radius * dx, cy - radius * dy, cz - radius * dz  # P's point nearest c
+    h = (mx - px) * dx + (my - py) * dy + (mz - pz) * dz
+    qx, qy, qz = mx - h * dx, my - h * dy, mz - h * dz  # the media's centre projected onto P
+    if u0 < m_share:
+        ox, oy, oz, rad = qx, qy, qz, m_radius
+    else:
+        ox, oy, oz, rad = px, py, pz, radius
+    r = rad * math.sqrt(u1)
     a = 2.0 * math.pi * u2
     ca, sa = r * math.cos(a), r * math.sin(a)
-    return (cx - radius * dx + ca * tx + sa * bx, cy - radius * dy + ca * ty + sa * by,
-            cz - radius * dz + ca * tz + sa * bz)
+    x = ox + ca * s[0] + sa * b[0]
+    y = oy + ca * s[1] + sa * b[1]
+    z = oz + ca * s[2] + sa * b[2]
+    density = 0.0
+    if m_share > 0.0 and (x - qx) ** 2 + (y - qy) ** 2 + (z - qz) ** 2 <= m_radius * m_radius:
+        density += m_share / (math.pi * m_radius * m_radius)
+    if (x - px) ** 2 + (y - py) ** 2 + (z - pz) ** 2 <= radius * radius:
+        density += (1.0 - m_share) / (math.pi * radius * radius)
+    return x, y, z, 1.0 / density
 
 
 @njit(cache=True)
-def emit_one(lights, li, cx, cy, cz, radius, rng, i):
+def emit_one(lights, li, bounds, rng, i):
     """A light-path start on light li: (x, y, z, dx, dy, dz, Wr, Wg, Wb), the flux weight W as in the module's
-    docstring (not yet divided by the light's choice probability)."""
+    docstring (not yet divided by the light's choice probability). bounds: the scene's bounding sphere (centre,
+    radius), the media's (centre, radius) and the share of the walks from lights at infinity aimed at the media
+    (_disc_start)."""
+    cx, cy, cz, radius, mx, my, mz, m_radius, m_share = (bounds[0], bounds[1], bounds[2], bounds[3], bounds[4],
+                                                         bounds[5], bounds[6], bounds[7], bounds[8])
     kind = int(lights[li, LIGHT_TYPE])
     Lr, Lg, Lb = lights[li, LIGHT_RGB], lights[li, LIGHT_RGB + 1], lights[li, LIGHT_RGB + 2]
     u1, u2, u3, u4 = rand(rng, i), rand(rng, i), rand(rng, i), rand(rng, i)
@@ -90,18 +112,18 @@ def emit_one(lights, li, cx, cy, cz, radius, rng, i):
         return x, y, z, w[0], w[1], w[2], Lr * s, Lg * s, Lb * s
     if kind == DIRECTIONAL:
         dx, dy, dz = lights[li, LIGHT_E1], lights[li, LIGHT_E1 + 1], lights[li, LIGHT_E1 + 2]
-        x, y, z = _disc_point(cx, cy, cz, radius, dx, dy, dz, u1, u2)
-        s = math.pi * radius * radius
-        return x, y, z, dx, dy, dz, Lr * s, Lg * s, Lb * s
+        x, y, z, area = _disc_start(cx, cy, cz, radius, mx, my, mz, m_radius, m_share, dx, dy, dz, u3, u1, u2)
+        return x, y, z, dx, dy, dz, Lr * area, Lg * area, Lb * area
     # ENVIRONMENT: radiance from every direction: a uniform direction of travel, through a disc facing it
     w = uniform_sphere(u1, u2)
-    x, y, z = _disc_point(cx, cy, cz, radius, w[0], w[1], w[2], u3, u4)
-    s = 4.0 * math.pi * math.pi * radius * radius
+    x, y, z, area = _disc_start(cx, cy, cz, radius, mx, my, mz, m_radius, m_share, w[0], w[1], w[2], rand(rng, i),
+                                u3, u4)
+    s = 4.0 * math.pi * area
     return x, y, z, w[0], w[1], w[2], Lr * s, Lg * s, Lb * s
 
 
 @njit(parallel=True, cache=True)
-def emit(lights, cdf, cx, cy, cz, radius, rng, pos, dirs, flux):
+def emit(lights, cdf, bounds, rng, pos, dirs, flux):
     """Light-path starts for every i: a light chosen by the cumulative probabilities cdf, then emit_one; flux
     divided by the choice's probability."""
     for i in prange(pos.shape[0]):
@@ -110,7 +132,7 @@ def emit(lights, cdf, cx, cy, cz, radius, rng, pos, dirs, flux):
         while li < cdf.shape[0] - 1 and u >= cdf[li]:
             li += 1
         p = cdf[li] - (cdf[li - 1] if li > 0 else 0.0)
-        x, y, z, dx, dy, dz, wr, wg, wb = emit_one(lights, li, cx, cy, cz, radius, rng, i)
+        x, y, z, dx, dy, dz, wr, wg, wb = emit_one(lights, li, bounds, rng, i)
         pos[i, 0], pos[i, 1], pos[i, 2] = x, y, z
         dirs[i, 0], dirs[i, 1], dirs[i, 2] = dx, dy, dz
         flux[i, 0], flux[i, 1], flux[i, 2] = wr / p, wg / p, wb / p

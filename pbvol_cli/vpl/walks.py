@@ -25,7 +25,8 @@ from numba import njit, prange
 
 from pbvol_cli.geometry.intersect import closest_surface_hits
 from pbvol_cli.geometry.scene_build import (DIELECTRIC, DIFFUSE, HOMOGENEOUS, MED_G, MED_KIND, MED_PHASE, MIRROR,
-                                           NULL, SURF_ALBEDO, SURF_TYPE, BuiltScene)
+                                           NULL, SPH_SURFACE, SURF_ALBEDO, SURF_MEDIUM_IN, SURF_MEDIUM_OUT, SURF_TYPE,
+                                           BuiltScene, sphere_bounds)
 from pbvol_cli.physics.fresnel import reflect, refract
 from pbvol_cli.physics.phase import phase_sample
 from pbvol_cli.physics.sampling import cosine_hemisphere, rand, seed_state
@@ -191,6 +192,34 @@ def _seed_walks(seed, rng):
         rng[i] = seed_state(seed, WALK_STREAM, i)
 
 
+MEDIA_SHARE = 0.5  # walks from lights at infinity aimed at the media's bounding sphere (vpl/emission.py)
+
+
+def emission_bounds(bs: BuiltScene) -> np.ndarray:
+    """emission.emit_one's bounds: the scene's bounding sphere, the media's (their bounding shapes' boxes; the
+    scene's when there is no medium) and MEDIA_SHARE."""
+    def sphere(lo, hi):
+        return 0.5 * (lo + hi), max(0.5 * float(np.linalg.norm(hi - lo)), 1e-6)
+
+    centre, radius = sphere(bs.bbox[0], bs.bbox[1])
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    bounding = (bs.surfaces[:, SURF_MEDIUM_IN] >= 0) | (bs.surfaces[:, SURF_MEDIUM_OUT] >= 0)
+    tri = bounding[bs.tri_surface] if len(bs.faces) else np.zeros(0, bool)
+    if tri.any():
+        v = bs.vertices[bs.faces[tri].ravel()]
+        lo, hi = np.minimum(lo, v.min(axis=0)), np.maximum(hi, v.max(axis=0))
+    for row in bs.spheres:
+        if bounding[int(row[SPH_SURFACE])]:
+            b = sphere_bounds(row)
+            lo, hi = np.minimum(lo, b[0]), np.maximum(hi, b[1])
+    share = MEDIA_SHARE
+    if not np.all(np.isfinite(lo)):
+        m_centre, m_radius, share = centre, radius, 0.0
+    else:
+        m_centre, m_radius = sphere(lo, hi)
+    return np.array([*centre, radius, *m_centre, m_radius, share], float)
+
+
 def trace_walks(caster, bs: BuiltScene, walks: int, seed: int, max_depth: int = 256, rr_depth: int = 4) -> VPLSet:
     """The VPLs of `walks` random walks from the scene's lights (random streams from seed). max_depth: events
     (scattering, surfaces other than null boundaries) a walk takes at most; rr_depth: events before Russian
@@ -198,11 +227,10 @@ def trace_walks(caster, bs: BuiltScene, walks: int, seed: int, max_depth: int = 
     rng = np.zeros(walks, np.uint64)
     _seed_walks(np.uint64(seed), rng)
     pos, dirs, beta = np.zeros((walks, 3)), np.zeros((walks, 3)), np.zeros((walks, 3))
-    centre = 0.5 * (bs.bbox[0] + bs.bbox[1])
-    radius = max(0.5 * float(np.linalg.norm(bs.bbox[1] - bs.bbox[0])), 1e-6)
-    power = light_powers(bs.lights, radius)
+    bounds = emission_bounds(bs)
+    power = light_powers(bs.lights, bounds[3])
     cdf = np.cumsum(power) / power.sum() if power.sum() > 0 else np.linspace(1, len(power), len(power)) / len(power)
-    emit(bs.lights, cdf, float(centre[0]), float(centre[1]), float(centre[2]), radius, rng, pos, dirs, beta)
+    emit(bs.lights, cdf, bounds, rng, pos, dirs, beta)
     beta0 = np.maximum(beta.max(axis=1), 1e-300)
     medium = np.full(walks, -1, np.int64)
     depth = np.zeros(walks, np.int64)
