@@ -20,9 +20,10 @@ from pbvol_cli.physics.sampling import coordinate_system, cosine_around, rand, u
 
 
 def light_powers(lights: np.ndarray, radius: float) -> np.ndarray:
-    """Each light's emitted flux (W, the mean of its RGB), those at infinity through a disc of the given radius:
-    the probabilities with which light paths choose them (any positive choice is unbiased; this one is
-    efficient)."""
+    """Each light's emitted flux (W, the mean of its RGB), those at infinity through a disc of the given radius
+    (the media's: what reaches them, not the far floor's share): in proportion to these light paths choose the
+    lights (any positive choice is unbiased; a sky counted over a large floor would starve a lamp's walks, each of
+    which then carries a huge flux)."""
     out = np.zeros(len(lights))
     for li, row in enumerate(lights):
         e = float(np.mean(row[LIGHT_RGB:LIGHT_RGB + 3]))

@@ -228,7 +228,7 @@ def trace_walks(caster, bs: BuiltScene, walks: int, seed: int, max_depth: int = 
     _seed_walks(np.uint64(seed), rng)
     pos, dirs, beta = np.zeros((walks, 3)), np.zeros((walks, 3)), np.zeros((walks, 3))
     bounds = emission_bounds(bs)
-    power = light_powers(bs.lights, bounds[3])
+    power = light_powers(bs.lights, bounds[7])  # lights at infinity: the flux through the media's disc
     cdf = np.cumsum(power) / power.sum() if power.sum() > 0 else np.linspace(1, len(power), len(power)) / len(power)
     emit(bs.lights, cdf, bounds, rng, pos, dirs, beta)
     beta0 = np.maximum(beta.max(axis=1), 1e-300)
