@@ -422,11 +422,15 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                                 pixel, npix, layers)
             if segment is not None:
                 sub_rng = rng[sub]
+                # weak branches (internal reflections, the glass's many splits) gather with probability
+                # beta_max / roulette, their light divided by it: unbiased, as pbl's medium terms above
+                q = np.minimum(1.0, beta[sub].max(axis=1) / max(pbl.roulette, 1e-300))
+                gather = evm[sub] & (roulette_rng.random(len(sub)) < q)
                 radiances, transmittance = segment.march(caster, int(m), pos[sub], dirs[sub], tev[sub], sub_rng,
-                                                         evm[sub])
+                                                         gather)
                 rng[sub] = sub_rng
                 for name, radiance in zip(segment.layers, radiances):
-                    value = radiance * beta[sub] * kpaths[sub, None]
+                    value = radiance * (beta[sub] / np.maximum(q, 1e-300)[:, None]) * kpaths[sub, None]
                     for ch in range(3):
                         layers[name][:, ch] += np.bincount(pixel[sub], weights=value[:, ch], minlength=npix)
                 beta[sub] *= transmittance

@@ -20,10 +20,8 @@ from pbvol_cli.physics.sampling import coordinate_system, cosine_around, rand, u
 
 
 def light_powers(lights: np.ndarray, radius: float) -> np.ndarray:
-    """Each light's emitted flux (W, the mean of its RGB), those at infinity through a disc of the given radius
-    (the media's: what reaches them, not the far floor's share): in proportion to these light paths choose the
-    lights (any positive choice is unbiased; a sky counted over a large floor would starve a lamp's walks, each of
-    which then carries a huge flux)."""
+    """Each light's emitted flux (W, the mean of its RGB); lights at infinity: through a disc of the given radius
+    (the media's)."""
     out = np.zeros(len(lights))
     for li, row in enumerate(lights):
         e = float(np.mean(row[LIGHT_RGB:LIGHT_RGB + 3]))
@@ -37,6 +35,28 @@ def light_powers(lights: np.ndarray, radius: float) -> np.ndarray:
         else:
             out[li] = e * 4 * math.pi * math.pi * radius ** 2
     return out
+
+
+def light_choice(lights: np.ndarray, centre, radius: float) -> np.ndarray:
+    """The probability with which a walk starts on each light: half in proportion to its flux, half to the flux it
+    sends toward the media's bounding sphere (centre, radius; a finite light's flux times the fraction of
+    directions from its centre that meet the sphere). Any positive choice is unbiased; the defensive mixture keeps
+    a lamp whose light reaches the media through a floor from being starved by a sky, and a sky that bathes a
+    small medium from being starved by a lamp that shines mostly elsewhere."""
+    power = light_powers(lights, radius)
+    toward = power.copy()
+    for li, row in enumerate(lights):
+        kind = int(row[LIGHT_TYPE])
+        if kind in (POINT, SPHERE, QUAD):
+            c = row[LIGHT_P0:LIGHT_P0 + 3] + (0.5 * (row[LIGHT_E1:LIGHT_E1 + 3] + row[LIGHT_E2:LIGHT_E2 + 3])
+                                             if kind == QUAD else 0.0)
+            d2 = float(np.sum((np.asarray(centre) - c) ** 2))
+            toward[li] *= 1.0 if d2 <= radius * radius else 0.5 * (1.0 - math.sqrt(1.0 - radius * radius / d2))
+    p = np.zeros(len(lights))
+    for w in (power, toward):
+        if w.sum() > 0:
+            p += 0.5 * w / w.sum()
+    return p / p.sum() if p.sum() > 0 else np.full(len(lights), 1.0 / max(len(lights), 1))
 
 
 @njit(cache=True)

@@ -39,6 +39,8 @@ from pbvol_cli.render.media import density_at
 from pbvol_cli.render.raymarch import RayMarcher, optical_depth
 from pbvol_cli.vpl.walks import VOLUME, trace_walks
 
+CONNECTIONS_PER_CHUNK = 2_000_000  # shadow rays of VPL connections in flight at once (about 200 MB)
+
 
 @njit(parallel=True, cache=True)
 def _gather_points(media, data, m, pos, dirs, tlen, segs, R, step, max_steps, rng, g_pos, g_dir, g_w):
@@ -221,16 +223,27 @@ class VPLGather(RayMarcher):
         return (volume, self._vpl_light(caster, m, pos, dirs, tlen, rng, gather)), trans
 
     def _vpl_light(self, caster, m, pos, dirs, tlen, rng, gather):
-        bs, st, V = self.built, self.settings, self.vpls
+        """The VPLs' light along each segment (n, 3), the gathering segments taken in chunks (the connections'
+        arrays are gather points x walks_per_point x VPLs per walk long)."""
         n = len(pos)
         out = np.zeros((n, 3))
         segs = np.flatnonzero(gather)
-        if V is None or len(V) == 0 or len(segs) == 0:
+        if self.vpls is None or len(self.vpls) == 0:
             return out
+        pos, dirs, tlen = (np.ascontiguousarray(a) for a in (pos, dirs, tlen))
+        per_walk = max(len(self.vpls) / self.vpls.walks, 1e-3)
+        chunk = max(1, int(CONNECTIONS_PER_CHUNK / (self.settings.gather_points * self.settings.walks_per_point
+                                                    * per_walk * (2 if self.settings.compensate else 1))))
+        for c0 in range(0, len(segs), chunk):
+            self._vpl_chunk(caster, m, pos, dirs, tlen, rng, segs[c0:c0 + chunk], out)
+        return out
+
+    def _vpl_chunk(self, caster, m, pos, dirs, tlen, rng, segs, out):
+        bs, st = self.built, self.settings
+        n = len(pos)
         R = st.gather_points
         G = len(segs) * R
         g_pos, g_dir, g_w = np.zeros((G, 3)), np.zeros((G, 3)), np.zeros((G, 3))
-        pos, dirs, tlen = (np.ascontiguousarray(a) for a in (pos, dirs, tlen))
         _gather_points(bs.media, bs.density_data, m, pos, dirs, tlen, segs, R, self.steps[m], self.max_steps, rng,
                        g_pos, g_dir, g_w)
         seg_of = np.repeat(segs, R)  # each gather point's segment
@@ -247,7 +260,6 @@ class VPLGather(RayMarcher):
                                         np.full(len(live), m, np.int64))
             for ch in range(3):
                 out[:, ch] += np.bincount(s_seg[live], weights=c[:, ch], minlength=n)
-        return out
 
     def _connections(self, m, g_pos, g_dir, g_w, seg_of, rng, bound):
         """Shadow rays (pos, dir, dist, contribution, light -1, segment) from the points to their chosen walks'

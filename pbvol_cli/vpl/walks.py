@@ -32,7 +32,7 @@ from pbvol_cli.physics.phase import phase_sample
 from pbvol_cli.physics.sampling import cosine_hemisphere, rand, seed_state
 from pbvol_cli.render.interfaces import dielectric_fresnel, incident_side, indices, medium_beyond
 from pbvol_cli.render.media import flight_weight, free_flight, majorant_flight, tentative_collision
-from pbvol_cli.vpl.emission import emit, light_powers
+from pbvol_cli.vpl.emission import emit, light_choice
 
 VOLUME, SURFACE = 0, 1  # VPL kinds
 WALK_STREAM = 0x57A1  # the walks' random streams (physics/sampling.seed_state)
@@ -228,8 +228,8 @@ def trace_walks(caster, bs: BuiltScene, walks: int, seed: int, max_depth: int = 
     _seed_walks(np.uint64(seed), rng)
     pos, dirs, beta = np.zeros((walks, 3)), np.zeros((walks, 3)), np.zeros((walks, 3))
     bounds = emission_bounds(bs)
-    power = light_powers(bs.lights, bounds[7])  # lights at infinity: the flux through the media's disc
-    cdf = np.cumsum(power) / power.sum() if power.sum() > 0 else np.linspace(1, len(power), len(power)) / len(power)
+    cdf = np.cumsum(light_choice(bs.lights, bounds[4:7], bounds[7]))
+    cdf[-1] = 1.0
     emit(bs.lights, cdf, bounds, rng, pos, dirs, beta)
     beta0 = np.maximum(beta.max(axis=1), 1e-300)
     medium = np.full(walks, -1, np.int64)
