@@ -3,14 +3,15 @@
 examples.
 
     .venv/bin/python benchmarks/marching_bench.py [--scenes smoke_glass,fog_table,candle_flame] [--resolution 128]
-        [--ref-spp 1024] [--raymarch-spp 1,4,16] [--vpl-spp 1,4,16] [--volpath-spp 4,16,64] [--out bench-out]
-        [--threads 2]
+        [--ref-spp 1024] [--raymarch-spp 1,4,16] [--vpl-spp 1,4,16] [--volpath-spp 4,16,64] [--pbl-spp ""]
+        [--out bench-out] [--threads 2]
 
 Per scene, every render in its own process (kernels warmed at 8 x 8 first; peak memory per process): two volpath
 references of --ref-spp samples each (seeds 101, 102), one of all the light and one restricted to `--orders 0,1`
-(what the ray marcher models: no multiple scattering), cached in .bench-cache/bench-refs; then raymarch, vpl and
-volpath at each count: seconds, peak MiB, whole-image relMSE against both references. Writes <out>/marching_bench.md
-and .json.
+(what the ray marcher models: no multiple scattering), cached in .bench-cache/bench-refs; then raymarch, vpl,
+volpath and (given --pbl-spp, on homogeneous scenes) pbl at each count: seconds, peak MiB, whole-image relMSE
+against both references. Writes <out>/marching_bench.md and .json and, where matplotlib is installed,
+<out>/marching_<scene>.png (relMSE against time).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from pbl_bench import ROOT, _run, _scene_hash, rel_mse  # noqa: E402
+from pbl_speed import _plot  # noqa: E402
 
 RENDER = r"""
 import json, sys
@@ -60,6 +62,7 @@ def main():
     ap.add_argument("--raymarch-spp", default="1,4,16")
     ap.add_argument("--vpl-spp", default="1,4,16")
     ap.add_argument("--volpath-spp", default="4,16,64")
+    ap.add_argument("--pbl-spp", default="")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
     ap.add_argument("--out", type=Path, default=ROOT / "bench-out")
@@ -73,7 +76,9 @@ def main():
         scene = ROOT / "configs" / f"{name}.toml"
         full = reference(scene, res, args.ref_spp, "", args.threads, args.cache)
         single = reference(scene, res, args.ref_spp, "0,1", args.threads, args.cache)
-        for method, spps in (("raymarch", args.raymarch_spp), ("vpl", args.vpl_spp), ("volpath", args.volpath_spp)):
+        curves = {}
+        for method, spps in (("raymarch", args.raymarch_spp), ("vpl", args.vpl_spp), ("volpath", args.volpath_spp),
+                             ("pbl", args.pbl_spp)):
             for spp in (int(v) for v in spps.split(",") if v):
                 out = args.out / f"{name}_{method}_{spp}.exr"
                 s = _run(RENDER, scene, out, method, spp, 1, args.threads, res, args.cache, "")
@@ -82,13 +87,15 @@ def main():
                              "peak_mb": round(s["peak_memory_mb"]), "rel_mse": rel_mse(img, full),
                              "rel_mse_orders01": rel_mse(img, single),
                              "mean_ratio": round(float(img.mean() / full.mean()), 4)})
+                curves.setdefault(method, []).append((rows[-1]["time_s"], rows[-1]["rel_mse"], spp))
                 print(json.dumps(rows[-1]), flush=True)
+        _plot(args.out / f"marching_{name}.png", name, curves, 1e-2)
     (args.out / "marching_bench.json").write_text(json.dumps(rows, indent=1) + "\n")
     lines = [f"{res}, references volpath {args.ref_spp} spp (all light; `--orders 0,1`), {args.threads} threads", "",
              "| scene | method | spp | time (s) | peak MiB | relMSE vs all | relMSE vs orders 0,1 | mean / ref |",
              "|---|---|---|---|---|---|---|---|"]
-    lines += [f"| {r['scene']} | {r['method']} | {r['spp']} | {r['time_s']:.2f} | {r['peak_mb']} | {r['rel_mse']:.4g} | "
-              f"{r['rel_mse_orders01']:.4g} | {r['mean_ratio']:.3f} |" for r in rows]
+    lines += [f"| {r['scene']} | {r['method']} | {r['spp']} | {r['time_s']:.2f} | {r['peak_mb']} | "
+              f"{r['rel_mse']:.4g} | {r['rel_mse_orders01']:.4g} | {r['mean_ratio']:.3f} |" for r in rows]
     (args.out / "marching_bench.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -173,7 +173,7 @@ def place_samples(
     cache_dir: CacheDirOpt = None,
     quiet: QuietOpt = False,
     method: Annotated[str, typer.Option(help="pbl: the light samples; dipole: those (its single scattering) and the "
-                                        "irradiance samples")] = "pbl",
+                                        "irradiance samples; vpl, raymarch, volpath: nothing to place")] = "pbl",
 ):
     """Place the light surface and volume samples of the point-based method (and the dipole's irradiance samples)
     and cache them."""
@@ -185,10 +185,16 @@ def place_samples(
     from pbvol_cli.pipeline.samples import check_samples_memory, get_irradiance_samples, get_light_samples
 
     try:
-        if method not in ("pbl", "dipole"):
-            raise PbvolError(f"--method: expected pbl or dipole, got {method!r}")
+        if method not in ("pbl", "dipole", "vpl", "raymarch", "volpath"):
+            raise PbvolError(f"--method: expected pbl, dipole, vpl, raymarch or volpath, got {method!r}")
         n = set_threads(threads)
         sc = C.load_scene(scene)
+        if method not in ("pbl", "dipole"):
+            # nothing worth caching: vpl's walks (a few hundred per pass) take milliseconds, less than reading an
+            # entry
+            why = "its walks are traced each pass, in milliseconds" if method == "vpl" else "it needs none"
+            typer.echo(f"{scene}: --method {method} places no samples ({why}); nothing to cache")
+            return
         check_samples_memory(sc.render.pbl, scene)
         built = build_scene(sc, scene)
         homogeneous_media_only(built, "pbl" if method == "pbl" else "dipole", scene)

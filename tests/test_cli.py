@@ -330,3 +330,20 @@ def test_check_says_where_diffusion_is_poor():
     assert media["marble_bunny"]["diffusion_poor"] == ""
     assert "3.3 reduced mean free paths thick" in media["wax_sphere"]["diffusion_poor"]
     assert "reduced albedo 0.37" in media["wax_sphere"]["diffusion_poor"]
+
+
+def test_place_samples_for_methods_without_samples(tmp_path):
+    """vpl, raymarch and volpath cache nothing: place-samples checks the scene, says so and succeeds; an unknown
+    method is refused, and so is a broken scene."""
+    scene = write_scene(tmp_path, {"unit": "mm", "camera": camera((8, 8)),
+                                   "lights": [{"type": "environment", "radiance": 1.0}],
+                                   "shapes": [{"type": "sphere", "radius": 1.0, "interface": "null",
+                                               "medium": "marble"}]})
+    for method in ("vpl", "raymarch", "volpath"):
+        r = runner.invoke(app, ["place-samples", str(scene), "--method", method, "--cache-dir", str(tmp_path)])
+        assert r.exit_code == 0 and "nothing to cache" in r.output, r.output
+    r = runner.invoke(app, ["place-samples", str(scene), "--method", "nope", "--cache-dir", str(tmp_path)])
+    assert r.exit_code == 1 and "--method" in r.output
+    scene.write_text(scene.read_text().replace('unit = "mm"', 'unit = "parsec"'))
+    r = runner.invoke(app, ["place-samples", str(scene), "--method", "vpl", "--cache-dir", str(tmp_path)])
+    assert r.exit_code == 1 and "unit" in r.output
