@@ -52,6 +52,20 @@ def volpath(built, spp=16, seed=1, orders=None, max_depth=100000, rr_depth=8, ba
     return img
 
 
+def render_layers(tmp_path: Path, scene: dict, method: str, spp: int, seed: int = 1, **settings) -> dict:
+    """The layers of a render of scene by method through the pipeline, settings in [render.<method>], and their sum
+    under "image"."""
+    from pbvol_cli.imageio import read_layers
+    from pbvol_cli.pipeline.render import RenderOptions, render_scene
+
+    scene = dict(scene, render=dict(scene["render"], **{method: settings}))
+    out = tmp_path / f"{method}.exr"
+    render_scene(write_scene(tmp_path, scene), out, RenderOptions(method=method, spp=spp, seed=seed,
+                                                                  cache_dir=tmp_path, quiet=True, timings=False))
+    layers = {k: v.astype(float) for k, v in read_layers(out).items()}
+    return dict(layers, image=sum(layers.values()))
+
+
 def camera_ray(cam, x, y):
     """The built camera's ray through the image point (x, y) in [-1, 1] (y up): origin, direction (not unit)."""
     d = cam[CAM_FORWARD:CAM_FORWARD + 3] + x * cam[CAM_RIGHT:CAM_RIGHT + 3] + y * cam[CAM_UP:CAM_UP + 3]

@@ -8,7 +8,7 @@ surface's exterior, as the scene stores them; directions are unit propagation di
 from numba import njit
 
 from pbvol_cli.geometry.scene_build import SURF_ETA_IN, SURF_ETA_OUT, SURF_MEDIUM_IN, SURF_MEDIUM_OUT
-from pbvol_cli.physics.fresnel import fresnel_dielectric
+from pbvol_cli.physics.fresnel import fresnel_dielectric, reflect, refract
 
 MIN_COS = 1e-9  # cosines of grazing incidence are clamped to this (Fresnel and refraction stay finite)
 
@@ -48,6 +48,19 @@ def dielectric_fresnel(eta_i, eta_t, dx, dy, dz, nx, ny, nz):
     cos_i = max(-(dx * nx + dy * ny + dz * nz), MIN_COS)
     F, cos_t = fresnel_dielectric(cos_i, eta_t / eta_i)
     return cos_i, F, cos_t
+
+
+@njit(inline="always", cache=True)
+def dielectric_choice(surfaces, s, entering, dx, dy, dz, nx, ny, nz, u):
+    """A ray of direction d meeting smooth dielectric s (normal n facing it) reflects with the Fresnel probability
+    (u uniform in [0, 1)) and refracts otherwise. Returns (wx, wy, wz, refracted, eta_i, eta_t)."""
+    eta_i, eta_t = indices(surfaces, s, entering)
+    cos_i, F, cos_t = dielectric_fresnel(eta_i, eta_t, dx, dy, dz, nx, ny, nz)
+    if u < F:
+        wx, wy, wz = reflect(dx, dy, dz, nx, ny, nz)
+        return wx, wy, wz, False, eta_i, eta_t
+    wx, wy, wz = refract(dx, dy, dz, nx, ny, nz, eta_t / eta_i, cos_i, cos_t)
+    return wx, wy, wz, True, eta_i, eta_t
 
 
 @njit(inline="always", cache=True)

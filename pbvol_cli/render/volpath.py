@@ -40,12 +40,12 @@ from pbvol_cli.geometry.scene_build import (DIELECTRIC, HOMOGENEOUS, MED_G, MED_
                                            MED_SIGMA_A, MIRROR, NULL, SPH_CENTER, SPH_RADIUS, SPH_SURFACE,
                                            SURF_ALBEDO, SURF_TYPE, BuiltScene)
 from pbvol_cli.jit import as_runtime
-from pbvol_cli.physics.fresnel import reflect, refract
+from pbvol_cli.physics.fresnel import reflect
 from pbvol_cli.physics.lights import ENVIRONMENT, LIGHT_RGB, LIGHT_TYPE, emitted_toward, light_pdf, light_sample
 from pbvol_cli.physics.phase import phase_eval, phase_sample
 from pbvol_cli.physics.sampling import cosine_hemisphere, power_heuristic, rand, seed_state
 from pbvol_cli.render.camera import generate_camera_rays
-from pbvol_cli.render.interfaces import dielectric_fresnel, incident_side, indices, medium_beyond, shadow_ray_length
+from pbvol_cli.render.interfaces import dielectric_choice, incident_side, medium_beyond, shadow_ray_length
 from pbvol_cli.render.media import flight_weight, free_flight, segment_transmittance, tentative_collision
 from pbvol_cli.geometry.intersect import analytic_hit, mesh_shading_normal
 
@@ -345,12 +345,9 @@ def _path_advance(i, fresh, S, misc, st, sh, hits):
         did_nee = False
         nee_on = False
         if stype == DIELECTRIC:
-            eta_i, eta_t = indices(surfaces, s, entering)
-            cos_i, F, cos_t = dielectric_fresnel(eta_i, eta_t, dx, dy, dz, fnx, fny, fnz)
-            if rand(rng, i) < F:
-                wx, wy, wz = reflect(dx, dy, dz, fnx, fny, fnz)
-            else:
-                wx, wy, wz = refract(dx, dy, dz, fnx, fny, fnz, eta_t / eta_i, cos_i, cos_t)
+            wx, wy, wz, refracted, eta_i, eta_t = dielectric_choice(surfaces, s, entering, dx, dy, dz, fnx, fny, fnz,
+                                                                    rand(rng, i))
+            if refracted:  # radiance scales by (eta_i / eta_t)^2 across the interface
                 k = (eta_i / eta_t) ** 2
                 beta[i, 0] *= k
                 beta[i, 1] *= k

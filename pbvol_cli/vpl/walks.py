@@ -27,10 +27,10 @@ from pbvol_cli.geometry.intersect import closest_surface_hits
 from pbvol_cli.geometry.scene_build import (DIELECTRIC, DIFFUSE, HOMOGENEOUS, MED_G, MED_KIND, MED_PHASE, MIRROR,
                                            NULL, SPH_SURFACE, SURF_ALBEDO, SURF_MEDIUM_IN, SURF_MEDIUM_OUT, SURF_TYPE,
                                            BuiltScene, sphere_bounds)
-from pbvol_cli.physics.fresnel import reflect, refract
+from pbvol_cli.physics.fresnel import reflect
 from pbvol_cli.physics.phase import phase_sample
 from pbvol_cli.physics.sampling import cosine_hemisphere, rand, seed_state
-from pbvol_cli.render.interfaces import dielectric_fresnel, incident_side, indices, medium_beyond
+from pbvol_cli.render.interfaces import dielectric_choice, incident_side, medium_beyond
 from pbvol_cli.render.media import flight_weight, free_flight, majorant_flight, tentative_collision
 from pbvol_cli.vpl.emission import emit, light_choice
 
@@ -150,12 +150,8 @@ def _walk_one(k, surfaces, media, density, idx, pos, dirs, beta, beta0, medium, 
         side = -1.0
     elif stype == DIELECTRIC:
         depth[j] += 1
-        eta_i, eta_t = indices(surfaces, s, entering)
-        cos_i, F, cos_t = dielectric_fresnel(eta_i, eta_t, dx, dy, dz, nx, ny, nz)
-        if rand(rng, j) < F:
-            dx, dy, dz = reflect(dx, dy, dz, nx, ny, nz)
-        else:
-            dx, dy, dz = refract(dx, dy, dz, nx, ny, nz, eta_t / eta_i, cos_i, cos_t)
+        dx, dy, dz, refracted, _, _ = dielectric_choice(surfaces, s, entering, dx, dy, dz, nx, ny, nz, rand(rng, j))
+        if refracted:
             medium[j] = medium_beyond(surfaces, s, entering)
             side = -1.0
     elif stype == MIRROR:

@@ -6,21 +6,15 @@ boundary against volpath's unscattered light, reproducibility."""
 import numpy as np
 import pytest
 
-from conftest import build, camera, volpath, write_scene
+from conftest import build, camera, render_layers, volpath, write_scene
 from pbvol_cli.errors import PbvolError
-from pbvol_cli.imageio import read_layers
 from pbvol_cli.pipeline.render import RenderOptions, render_scene
 from test_media import HEAT, Z_PROFILE, box_scene, march, per_pixel, sphere_scene, z_grid
 
 
 def raymarch(tmp_path, scene, spp, seed=1, **settings):
     """The layers of a raymarch render ({"volume", "surface"}: (H, W, 3)) and their sum under "image"."""
-    scene = dict(scene, render=dict(scene["render"], raymarch=settings))
-    path = write_scene(tmp_path, scene)
-    render_scene(path, tmp_path / "o.exr", RenderOptions(method="raymarch", spp=spp, seed=seed, cache_dir=tmp_path,
-                                                         quiet=True, timings=False))
-    layers = {k: v.astype(float) for k, v in read_layers(tmp_path / "o.exr").items()}
-    return dict(layers, image=layers["volume"] + layers["surface"])
+    return render_layers(tmp_path, scene, "raymarch", spp, seed, **settings)
 
 
 def test_emission_and_absorption_converge_with_the_step(tmp_path):

@@ -7,10 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from conftest import build, camera, volpath, write_scene
+from conftest import build, camera, render_layers, volpath, write_scene
 from pbvol_cli.errors import PbvolError
 from pbvol_cli.geometry.raycast import TriangleCaster
-from pbvol_cli.imageio import read_layers
 from pbvol_cli.pipeline.render import RenderOptions, render_scene
 from pbvol_cli.vpl.walks import VOLUME, trace_walks
 
@@ -26,12 +25,7 @@ def sphere_scene(medium, sky_only=False):
 
 def vpl(tmp_path, scene, spp, seed=1, **settings):
     """The layers of a vpl render ({"volume", "vpl", "surface"}) and their sum under "image"."""
-    scene = dict(scene, render=dict(scene["render"], vpl=settings))
-    path = write_scene(tmp_path, scene)
-    render_scene(path, tmp_path / "v.exr", RenderOptions(method="vpl", spp=spp, seed=seed, cache_dir=tmp_path,
-                                                         quiet=True, timings=False))
-    layers = {k: v.astype(float) for k, v in read_layers(tmp_path / "v.exr").items()}
-    return dict(layers, image=sum(layers.values()))
+    return render_layers(tmp_path, scene, "vpl", spp, seed, **settings)
 
 
 def seed_means(tmp_path, scene, seeds=8, spp=64, **settings):
