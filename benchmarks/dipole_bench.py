@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from pbl_bench import RENDER, ROOT, _run, rel_mse, scenes_with_references  # noqa: E402
+from pbl_bench import RENDER, ROOT, _run, output_args, rel_mse, scenes_with_references  # noqa: E402
 
 
 def main():
@@ -31,9 +31,7 @@ def main():
     ap.add_argument("--dipole-spp", default="1,4")
     ap.add_argument("--pbl-spp", default="1")
     ap.add_argument("--volpath-spp", default="64")
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
-    ap.add_argument("--out", type=Path, default=ROOT / "bench-out")
+    output_args(ap)
     args = ap.parse_args()
     import numpy as np
 

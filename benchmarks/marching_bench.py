@@ -22,7 +22,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from pbl_bench import ROOT, _run, _scene_hash, rel_mse  # noqa: E402
+from pbl_bench import ROOT, _run, _scene_hash, output_args, rel_mse  # noqa: E402
 from pbl_speed import _plot  # noqa: E402
 
 RENDER = r"""
@@ -63,9 +63,7 @@ def main():
     ap.add_argument("--vpl-spp", default="1,4,16")
     ap.add_argument("--volpath-spp", default="4,16,64")
     ap.add_argument("--pbl-spp", default="")
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
-    ap.add_argument("--out", type=Path, default=ROOT / "bench-out")
+    output_args(ap)
     args = ap.parse_args()
     from pbvol_cli.imageio import read_exr
 

@@ -80,6 +80,13 @@ def _run(code: str, *args) -> dict:
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
+def output_args(ap):
+    """The options every benchmark shares: --threads, --cache (the bench caches and references), --out."""
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
+    ap.add_argument("--out", type=Path, default=ROOT / "bench-out")
+
+
 def rel_mse(a, b) -> float:
     from pbvol_cli.pipeline.compare import image_metrics
 
