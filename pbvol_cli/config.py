@@ -823,8 +823,15 @@ def load_material(path: Path) -> Material:
 
 
 def load_scene(path: Path) -> Scene:
+    """The validated scene of a TOML file (ConfigError naming the file and the field otherwise)."""
     path = Path(path)
-    data = read_toml(path)
+    return scene_from_data(read_toml(path), path)
+
+
+def scene_from_data(data: dict, path: Path) -> Scene:
+    """The validated scene of a scene file's contents (a dict as TOML gives it); path: where its relative files
+    are found and how errors name it."""
+    path = Path(path)
     try:
         scene = Scene.model_validate(data)
     except ValidationError as e:

@@ -105,26 +105,25 @@ def writable_file(path: Path, what: str):
         raise PbvolError(f"{path}: cannot write {what}: permission denied")
 
 
-def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview: Path | None = None,
-                 reference: Path | None = None, exposure: float = 0.0) -> dict:
-    """Render a scene file to an EXR. Returns the summary dict (also printed by the CLI)."""
+@dataclass
+class Rendered:
+    """A render in memory: the image and layers (H, W, 3) float64, the EXR metadata, the summary (render_scene's,
+    without the output), and `problem`: why the image is implausible (non-finite or absurd pixels), else None."""
+
+    image: np.ndarray
+    layers: dict
+    metadata: dict
+    summary: dict
+    problem: str | None
+
+
+def render_loaded(scene: C.Scene, scene_path: Path, opts: RenderOptions, reference_size=None) -> Rendered:
+    """Render a validated scene (scene_path: where its relative files live, and its name in errors and metadata)
+    with opts. reference_size: (W, H) a reference image must match, checked before rendering."""
     from pbvol_cli.geometry.scene_build import build_scene
-    from pbvol_cli.imageio import read_exr, write_exr, write_preview_png
 
     if opts.method not in METHODS:
         raise PbvolError(f"unknown method {opts.method!r}; expected one of: {', '.join(METHODS)}")
-    out_path = Path(out_path)
-    if out_path.suffix.lower() != ".exr":
-        raise PbvolError(f"{out_path}: the output must be an .exr file (use --preview for a PNG)")
-    writable_file(out_path, "the output")
-    if preview is not None:
-        writable_file(Path(preview), "--preview")
-    ref_img = None
-    if reference is not None:
-        ref_img, _ = read_exr(reference)
-        if not np.all(np.isfinite(ref_img)):
-            raise PbvolError(f"{reference}: the reference has non-finite pixels; expected a finite image")
-    scene = C.load_scene(scene_path)
     rs = scene.render
     spp = opts.spp or rs.spp
     seed = rs.seed if opts.seed is None else opts.seed
@@ -136,10 +135,10 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
     t_build = time.perf_counter() - t_build
     W, H = built.resolution
     check_memory(opts.method, W, H, rs.pbl if opts.method != "volpath" and built.medium_info else None, scene_path)
-    if ref_img is not None and ref_img.shape[:2] != (H, W):
-        raise PbvolError(f"{reference}: reference is {ref_img.shape[1]}x{ref_img.shape[0]}, render is {W}x{H}")
+    if reference_size is not None and tuple(reference_size) != (W, H):
+        raise PbvolError(f"the reference is {reference_size[0]}x{reference_size[1]}, the render {W}x{H}")
 
-    layers, stages = None, {}
+    layers, stages = {}, {}
     with CompileMonitor(opts.quiet) as compiling:
         if opts.method in ("pbl", "dipole", "raymarch", "vpl"):
             img, layers, stats, stages = _render_pbl(scene, built, spp, seed, threads, time_limit, opts,
@@ -172,21 +171,52 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
         meta["surface_paths"] = float(np.mean(ks))
         meta["surface_paths_per_pass"] = ",".join(f"{k:.4g}" for k in ks)
         meta["surface_paths_setting"] = scene.render.pbl.surface_paths
-    write_exr(out_path, img.astype(np.float32), meta,
-              layers={k: v.astype(np.float32) for k, v in layers.items()} if layers else None,
-              date_time=None if opts.timings else FIXED_DATE_TIME)
-    problem = implausible_pixels(img, layers, float(built.lights[:, LIGHT_RGB:LIGHT_RGB + 3].max(initial=0.0)))
-    if problem:
-        raise RenderFailed(f"{out_path}: written, but {problem}: the render failed (please report the scene)")
-    if preview is not None:
-        write_preview_png(preview, img, exposure)
     summary = {
-        "output": str(out_path), "method": opts.method, "resolution": [W, H], "spp": spp_done,
+        "method": opts.method, "resolution": [W, H], "spp": spp_done,
         "time_s": elapsed, "samples_per_second": W * H * spp_done / max(elapsed, 1e-9),
         "peak_memory_mb": peak_memory_mb(), "threads": threads, "compile_s": compiling.seconds,
     }
     if stages:
         summary["stages"] = stages
+    problem = implausible_pixels(img, layers, float(built.lights[:, LIGHT_RGB:LIGHT_RGB + 3].max(initial=0.0)))
+    return Rendered(img, layers, meta, summary, problem)
+
+
+def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview: Path | None = None,
+                 reference: Path | None = None, exposure: float = 0.0) -> dict:
+    """Render a scene file to an EXR (render_loaded, then the file). Returns the summary dict (also printed by the
+    CLI)."""
+    from pbvol_cli.imageio import read_exr, write_exr, write_preview_png
+
+    if opts.method not in METHODS:
+        raise PbvolError(f"unknown method {opts.method!r}; expected one of: {', '.join(METHODS)}")
+    out_path = Path(out_path)
+    if out_path.suffix.lower() != ".exr":
+        raise PbvolError(f"{out_path}: the output must be an .exr file (use --preview for a PNG)")
+    writable_file(out_path, "the output")
+    if preview is not None:
+        writable_file(Path(preview), "--preview")
+    ref_img = None
+    if reference is not None:
+        ref_img, _ = read_exr(reference)
+        if not np.all(np.isfinite(ref_img)):
+            raise PbvolError(f"{reference}: the reference has non-finite pixels; expected a finite image")
+    scene = C.load_scene(scene_path)
+    try:
+        r = render_loaded(scene, scene_path, opts, None if ref_img is None else ref_img.shape[1::-1])
+    except PbvolError as e:
+        if ref_img is not None and str(e).startswith("the reference is"):
+            raise PbvolError(f"{reference}: {e}") from None
+        raise
+    img, layers = r.image, r.layers
+    write_exr(out_path, img.astype(np.float32), r.metadata,
+              layers={k: v.astype(np.float32) for k, v in layers.items()} if layers else None,
+              date_time=None if opts.timings else FIXED_DATE_TIME)
+    if r.problem:
+        raise RenderFailed(f"{out_path}: written, but {r.problem}: the render failed (please report the scene)")
+    if preview is not None:
+        write_preview_png(preview, img, exposure)
+    summary = {"output": str(out_path), **r.summary}
     if ref_img is not None:
         from pbvol_cli.pipeline.compare import image_metrics
 
