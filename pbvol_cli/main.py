@@ -218,7 +218,46 @@ def place_samples(
         typer.echo(f"{scene}: {what}: {len(ir.samples.pos)} irradiance samples -> {ir.path}")
 
 
-GATED_METRICS = {"mse": "mse", "rel-mse": "rel_mse"}  # compare --metric: the key of image_metrics it reads
+# compare --fail-above METRIC=VALUE: the key of image_metrics each metric reads
+GATED_METRICS = {"mse": "mse", "rel-mse": "rel_mse", "relmse": "rel_mse", "flip": "flip",
+                 "pixels": "pixels_over", "pixels-percent": "pixels_over_percent"}
+
+
+def _gates(fail_above: list[str], metric: str) -> list[tuple[str, float]]:
+    """(metric, bound) of each --fail-above: METRIC=VALUE, or a bare VALUE for --metric."""
+    gates = []
+    for item in fail_above:
+        name, _, text = item.rpartition("=")
+        name = name.strip() or metric
+        if name not in GATED_METRICS:
+            raise PbvolError(f"--fail-above {item}: unknown metric {name!r}; expected one of "
+                             f"{', '.join(GATED_METRICS)}")
+        try:
+            bound = float(text)
+        except ValueError:
+            raise PbvolError(f"--fail-above {item}: expected METRIC=NUMBER or a number") from None
+        if not math.isfinite(bound):
+            raise PbvolError(f"--fail-above: expected a finite number, got {bound}")
+        gates.append((name, bound))
+    return gates
+
+
+def _compared(path: Path, layer: str | None, channel: str | None):
+    """The image of an EXR to compare: its RGB or a named layer, all channels or one (replicated to RGB)."""
+    import numpy as np
+
+    from pbvol_cli.imageio import read_exr, read_layers
+
+    img = read_exr(path)[0]
+    if layer is not None:
+        layers = read_layers(path)
+        if layer not in layers:
+            raise PbvolError(f"{path}: no layer {layer!r}; it has {', '.join(sorted(layers)) or 'none'}")
+        img = layers[layer]
+    if channel is not None:
+        k = "RGB".index(channel)
+        img = np.repeat(img[..., k:k + 1], 3, axis=2)
+    return img
 
 
 @app.command()
@@ -227,28 +266,39 @@ def compare(
     reference: Annotated[Path, typer.Argument(help="reference image")],
     diff: Annotated[Optional[Path], typer.Option(help="write a false-colour error image (PNG)")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="print the metrics as JSON")] = False,
-    fail_above: Annotated[Optional[float], typer.Option(help="exit with status 2 when the --metric exceeds this")]
-    = None,
-    metric: Annotated[str, typer.Option(help="what --fail-above bounds: mse, or rel-mse (the relative MSE, "
+    fail_above: Annotated[Optional[list[str]], typer.Option(
+        help="METRIC=VALUE (mse, rel-mse, flip, pixels, pixels-percent; repeatable) or a bare VALUE for --metric: "
+             "exit with status 2 when a metric exceeds its bound")] = None,
+    metric: Annotated[str, typer.Option(help="what a bare --fail-above bounds: mse, or rel-mse (the relative MSE, "
                                         "(a - b)^2 / (b^2 + 0.01), which weighs dark and bright pixels alike)")]
     = "mse",
-
+    pixel_threshold: Annotated[Optional[float], typer.Option(
+        help="count the pixels differing by more than this in some channel (idiff's -fail; gate them with "
+             "--fail-above pixels=N or pixels-percent=P)")] = None,
+    layer: Annotated[Optional[str], typer.Option(help="compare this layer of both files (e.g. single, vpl)")] = None,
+    channel: Annotated[Optional[str], typer.Option(help="compare one channel: R, G or B")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print nothing: the exit status says whether "
                                         "--fail-above passed")] = False,
 ):
-    """MSE, relative MSE and PSNR of IMAGE against REFERENCE, overall and per channel."""
-    from pbvol_cli.imageio import read_exr
+    """MSE, relative MSE, PSNR and FLIP of IMAGE against REFERENCE, overall and per channel. Exit status: 0 the
+    images compare (within every --fail-above), 2 they differ beyond a bound, 1 they cannot be compared (missing
+    or unreadable files, sizes or layers that differ, non-finite pixels, bad options)."""
     from pbvol_cli.pipeline.compare import error_image_png, format_report, image_metrics
 
     try:
-        if fail_above is not None and not math.isfinite(fail_above):
-            raise PbvolError(f"--fail-above: expected a finite number, got {fail_above}")
         if metric not in GATED_METRICS:
             raise PbvolError(f"--metric: expected one of {', '.join(GATED_METRICS)}, got {metric!r}")
-        a, _ = read_exr(image)
-        b, _ = read_exr(reference)
+        gates = _gates(fail_above or [], metric)
+        if channel is not None and channel not in ("R", "G", "B"):
+            raise PbvolError(f"--channel: expected R, G or B, got {channel!r}")
+        if pixel_threshold is not None and not (math.isfinite(pixel_threshold) and pixel_threshold >= 0):
+            raise PbvolError(f"--pixel-threshold: expected a finite number >= 0, got {pixel_threshold}")
+        if any(GATED_METRICS[n].startswith("pixels") for n, _ in gates) and pixel_threshold is None:
+            raise PbvolError("--fail-above pixels...: give --pixel-threshold too")
+        a = _compared(image, layer, channel)
+        b = _compared(reference, layer, channel)
         try:
-            m = image_metrics(a, b)
+            m = image_metrics(a, b, pixel_threshold)
         except PbvolError as e:
             msg = str(e).replace(" A ", f" {image} ").replace(" B ", f" {reference} ")
             msg = msg.replace("A has", f"{image} has").replace("B has", f"{reference} has")
@@ -259,9 +309,10 @@ def compare(
         _fail(e)
     if not quiet:
         typer.echo(json.dumps(m, allow_nan=False) if as_json else format_report(m, str(image), str(reference)))
-    value = m[GATED_METRICS[metric]]
-    if fail_above is not None and value > fail_above:
-        typer.echo(f"FAIL: {metric} {value:.6g} exceeds {fail_above:g}", err=True)
+    failed = [(n, m[GATED_METRICS[n]], bound) for n, bound in gates if m[GATED_METRICS[n]] > bound]
+    for n, value, bound in failed:
+        typer.echo(f"FAIL: {n} {value:.6g} exceeds {bound:g}", err=True)
+    if failed:
         raise typer.Exit(EXIT_COMPARISON_FAILED)
 
 

@@ -84,7 +84,28 @@ def _psnr(mse: float, peak: float) -> float | str:
     return float(10.0 * math.log10(peak * peak / mse))
 
 
-def image_metrics(a, b) -> dict:
+def flip_map(a, b) -> np.ndarray:
+    """The HDR-FLIP error (Andersson et al. 2021, OpenImageIO's FLIP_diff) of test image a against reference b,
+    both (H, W, 3) linear radiance: (H, W), 0 (identical) to 1, perceptual; the exposure range up to the
+    reference's largest luminance (at least 1)."""
+    import OpenImageIO as oiio
+
+    def buf(x):
+        x = np.ascontiguousarray(x, dtype=np.float32)
+        ib = oiio.ImageBuf(oiio.ImageSpec(x.shape[1], x.shape[0], 3, oiio.FLOAT))
+        ib.set_pixels(oiio.ROI(), x)
+        return ib
+
+    lum = 0.2126 * b[..., 0] + 0.7152 * b[..., 1] + 0.0722 * b[..., 2]
+    peak = max(float(lum.max()), 1.0)  # FLIP's exposures span median 0.18 to the peak: at least 1 (a dim image
+    # is judged as seen at unit exposure)
+    out = oiio.ImageBufAlgo.FLIP_diff(buf(b), buf(a), hdr=1, maxluminance=peak)
+    if out.has_error:
+        raise PbvolError(f"FLIP: {out.geterror()}")
+    return out.get_pixels(oiio.FLOAT)[..., 0].astype(np.float64)
+
+
+def image_metrics(a, b, pixel_threshold: float | None = None) -> dict:
     """Error metrics of image ``a`` (test) against the reference ``b``; both (H, W, 3), finite.
 
     Definitions (mean over all pixels, and over channels for the overall values):
@@ -97,9 +118,13 @@ def image_metrics(a, b) -> dict:
       reference over all channels (the same peak is used for the per-channel PSNRs); if the
       reference is entirely <= 0, peak = 1. ``"inf"`` (a string) when mse is 0.
 
+    * ``flip``    = the mean HDR-FLIP error (flip_map; RGB images only, else absent);
+    * with ``pixel_threshold``, idiff-style: ``pixels_over`` = how many pixels differ by more than it in some
+      channel, ``pixels_over_percent`` = their share of the image (%).
+
     Returns a JSON-serialisable dict::
 
-        {"width", "height", "channels", "peak", "mse", "rel_mse", "psnr", "max_abs_error",
+        {"width", "height", "channels", "peak", "mse", "rel_mse", "psnr", "max_abs_error", "flip",
          "per_channel": {"R": {"mse", "rel_mse", "psnr", "max_abs_error"}, "G": ..., "B": ...}}
 
     Raises PbvolError on a size mismatch ("image sizes differ: A is 256x256, B is 128x128",
@@ -128,6 +153,13 @@ def image_metrics(a, b) -> dict:
         "max_abs_error": float(absd.max()),
         "per_channel": {},
     }
+    if c == 3:
+        out["flip"] = float(flip_map(a, b).mean())
+    if pixel_threshold is not None:
+        over = int((absd > pixel_threshold).any(axis=2).sum())
+        out["pixel_threshold"] = float(pixel_threshold)
+        out["pixels_over"] = over
+        out["pixels_over_percent"] = 100.0 * over / (h * w)
     for i, name in enumerate(_channel_names(c)):
         cm = float(sq[:, :, i].mean())
         out["per_channel"][name] = {
@@ -199,4 +231,9 @@ def format_report(metrics: dict, name_a: str, name_b: str) -> str:
     lines.append(row("all", metrics))
     for name, m in metrics.get("per_channel", {}).items():
         lines.append(row(name, m))
+    if "flip" in metrics:
+        lines.append(f"\nFLIP (HDR, mean): {metrics['flip']:.4f}")
+    if "pixels_over" in metrics:
+        lines.append(f"pixels differing by more than {metrics['pixel_threshold']:g}: {metrics['pixels_over']} "
+                     f"({metrics['pixels_over_percent']:.3g} %)")
     return "\n".join(lines)

@@ -119,3 +119,58 @@ def test_format_report():
     assert "render.exr" in text and "reference.exr" in text
     for token in ("MSE", "relMSE", "PSNR", "all", "R", "G", "B", "inf", "20x16"):
         assert token in text
+
+
+def test_flip_grows_with_the_visible_difference():
+    """HDR-FLIP: 0 for identical images, small for a 5 % exposure change, larger for strong noise, near 1 for
+    black against grey (values measured: 0, 0.050, 0.22, 0.96)."""
+    rng = np.random.default_rng(1)
+    ref = rng.random((32, 32, 3)) * 5
+    flip = [image_metrics(a, b)["flip"] for a, b in (
+        (ref, ref), (ref * 1.05, ref), (ref + rng.normal(0, 0.5, ref.shape), ref),
+        (np.zeros((8, 8, 3)), np.full((8, 8, 3), 0.1)))]
+    assert flip[0] == 0.0 and 0.0 < flip[1] < 0.1 < flip[2] < 0.5 < flip[3] <= 1.0, flip
+
+
+def test_pixel_failure_counts():
+    a = np.zeros((4, 5, 3))
+    b = a.copy()
+    b[0, 0, 1] = 0.5
+    b[3, 4] = 0.05
+    m = image_metrics(a, b, pixel_threshold=0.1)
+    assert m["pixels_over"] == 1 and m["pixels_over_percent"] == 5.0
+    assert image_metrics(a, b, pixel_threshold=0.01)["pixels_over"] == 2
+    assert "pixels_over" not in image_metrics(a, b)
+
+
+def test_compare_gates_layers_and_channels(tmp_path):
+    """--fail-above METRIC=VALUE, repeated; --layer and --channel; exit 0 (within), 2 (differs), 1 (cannot
+    compare)."""
+    from typer.testing import CliRunner
+
+    from pbvol_cli.imageio import write_exr
+    from pbvol_cli.main import app
+
+    runner = CliRunner()
+    base = np.full((6, 6, 3), 0.5, np.float32)
+    red = base.copy()
+    red[..., 0] += 0.2
+    write_exr(tmp_path / "a.exr", base, layers={"single": base, "vpl": base})
+    write_exr(tmp_path / "b.exr", red, layers={"single": base, "vpl": red})
+    a, b = str(tmp_path / "a.exr"), str(tmp_path / "b.exr")
+
+    def run(*args):
+        return runner.invoke(app, ["compare", b, a, "-q", *args]).exit_code
+
+    assert run("--fail-above", "mse=0.1", "--fail-above", "flip=0.9") == 0
+    assert run("--fail-above", "rel-mse=1e-3") == 2
+    assert run("--fail-above", "mse=0.1", "--fail-above", "flip=0.01") == 2
+    assert run("--layer", "single", "--fail-above", "mse=0") == 0
+    assert run("--layer", "vpl", "--fail-above", "mse=0") == 2
+    assert run("--channel", "G", "--fail-above", "mse=0") == 0
+    assert run("--channel", "R", "--fail-above", "mse=0") == 2
+    assert run("--pixel-threshold", "0.1", "--fail-above", "pixels=36") == 0  # all 36 pixels differ by 0.2
+    assert run("--pixel-threshold", "0.1", "--fail-above", "pixels-percent=50") == 2
+    for bad in (["--layer", "nope"], ["--channel", "A"], ["--fail-above", "speed=3"], ["--fail-above", "mse=x"],
+                ["--fail-above", "pixels=3"]):
+        assert run(*bad) == 1, bad
