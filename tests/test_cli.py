@@ -332,6 +332,18 @@ def test_check_says_where_diffusion_is_poor():
     assert "reduced albedo 0.37" in media["wax_sphere"]["diffusion_poor"]
 
 
+def test_check_says_where_the_marching_methods_are_poor():
+    """raymarch and vpl: the milk (sealed in glass, 22 mean free paths across, albedo near 1) is far from their
+    regime on both counts, the oil sphere only as sealed; the fog suits them, and the smoke in a glass box too (its
+    scene lets shadow rays through the flat glass)."""
+    root = Path(__file__).resolve().parent.parent / "configs"
+    media = {name: json.loads(runner.invoke(app, ["check", str(root / f"{name}.toml"), "--json"]).stdout)["media"][0]
+             for name in ("milk_glass", "oil_sphere", "fog_table", "smoke_glass")}
+    assert "sealed" in media["milk_glass"]["marching_poor"] and "spike" in media["milk_glass"]["marching_poor"]
+    assert "sealed" in media["oil_sphere"]["marching_poor"] and "spike" not in media["oil_sphere"]["marching_poor"]
+    assert media["fog_table"]["marching_poor"] == "" and media["smoke_glass"]["marching_poor"] == ""
+
+
 def test_place_samples_for_methods_without_samples(tmp_path):
     """vpl, raymarch and volpath cache nothing: place-samples checks the scene, says so and succeeds; an unknown
     method is refused, and so is a broken scene."""

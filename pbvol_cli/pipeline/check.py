@@ -37,12 +37,15 @@ def describe(scene: C.Scene, path: Path) -> dict:
         out["media"].append({"label": mi.label, "albedo": alb.tolist(), "mean_free_path": mfp.tolist(),
                              "g": mi.material.g, "phase": mi.material.phase, "sealed": bool(b.media[k, MED_SEALED]),
                              "object_size": obj, "mean_free_paths_across": across.tolist(),
-                             "diffusion_poor": _diffusion_regime(b, k, box), "density": _density_text(b, k),
+                             "diffusion_poor": _diffusion_regime(b, k, box),
+                             "marching_poor": _marching_regime(b, k, across,
+                                                               scene.render.raymarch.shadows_through_dielectrics),
+                             "density": _density_text(b, k),
                              "emission": list(mi.material.emission) if mi.material.emission is not None else None})
         if mi.material.density is not None or mi.material.emission is not None:
             out["notes"].append(f"{mi.label}: heterogeneous or emissive: --method volpath renders it, "
-                                "--method raymarch approximates it (emission and single scattering); pbl and "
-                                "dipole take homogeneous, non-emissive media")
+                                "--method raymarch approximates it (emission and single scattering), --method vpl "
+                                "adds its multiple scattering; pbl and dipole take homogeneous, non-emissive media")
         thickest = float(np.max(across, where=np.isfinite(across), initial=0.0))
         if thickest > 2.0 * extent:
             out["notes"].append(f"{mi.label}: {thickest:.3g} mean free paths across, beyond the "
@@ -89,6 +92,29 @@ def _diffusion_regime(b, k: int, box) -> str:
     if albedo < DIFFUSION_ALBEDO:
         why.append(f"reduced albedo {albedo:.2g}")
     return ", ".join(why)
+
+
+MARCHING_DENSE = 20.0  # mean free paths across: a denser high-albedo body makes the VPLs spike (docs/vpl.md)
+MARCHING_ALBEDO = 0.9
+
+
+def _marching_regime(b, k: int, across, through_dielectrics: bool) -> str:
+    """Whether the marching methods (--method raymarch, vpl) suit medium k: "" where they do, else why not: sealed
+    behind refracting boundaries (their shadow rays do not refract: no single scattering from the lights), or
+    dense with a high albedo (the VPLs, clamped at half a mean free path, spike; the ray marcher misses most of
+    the light, which scatters many times)."""
+    mi = b.medium_info[k]
+    why = []
+    if b.media[k, MED_SEALED] and not through_dielectrics:
+        why.append("sealed behind refracting boundaries: no single scattering from the lights unless "
+                   "[render.raymarch] shadows_through_dielectrics (flat glass only)")
+    st = mi.sigma_a + mi.sigma_s
+    albedo = float(np.max(np.where(st > 0, mi.sigma_s / np.maximum(st, 1e-300), 0.0)))
+    thick = float(np.max(np.where(np.isfinite(across), across, 0.0)))
+    if thick > MARCHING_DENSE and albedo > MARCHING_ALBEDO:
+        why.append(f"{thick:.3g} mean free paths across with albedo {albedo:.2g}: multiple scattering dominates "
+                   "and the VPLs spike")
+    return "; ".join(why)
 
 
 SMALL_LIGHT_SR = 0.01  # a light subtending less than this from a sealed medium is found by volpath only by chance
@@ -161,6 +187,10 @@ def summarize(scene: C.Scene, path: Path) -> str:
                                                                else ""))
         if m["diffusion_poor"]:
             lines.append(f"      dipole: far from its thick, high-albedo regime ({m['diffusion_poor']})")
+        if m["marching_poor"]:
+            better = "volpath" if m["density"] != "homogeneous" or m["emission"] else "pbl (or dipole)"
+            lines.append(f"      raymarch, vpl: far from their regime ({m['marching_poor']}); {better} suits it "
+                         "better")
     lines += [f"  note: {n}" for n in d["notes"]]
     return "\n".join(lines)
 
