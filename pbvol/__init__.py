@@ -73,9 +73,10 @@ def load_scene(source, base_dir=None) -> Scene:
 def render(scene, method: str = "volpath", spp: int | None = None, seed: int | None = None,
            resolution: tuple[int, int] | None = None, threads: int | None = None, time_limit: float | None = None,
            orders: str | None = None, components: str | None = None, max_depth: int | None = None,
-           cache_dir=None, progress: bool = False) -> Result:
+           samples: tuple[int, int] | None = None, cache_dir=None, progress: bool = False) -> Result:
     """Render a Scene (or a path or dict, loaded by load_scene). The arguments are the command line's options
-    (None: the scene's setting); progress: show the progress bar on stderr. Tables and light samples come from the
+    (None: the scene's setting; samples=(A, B): samples A .. B-1, volpath); progress: show the progress bar on
+    stderr. Tables and light samples come from the
     cache (cache_dir, else $PBVOL_CACHE_DIR, else ~/.cache/pbvol)."""
     from pbvol_cli.pipeline.render import RenderOptions, render_loaded
 
@@ -84,6 +85,7 @@ def render(scene, method: str = "volpath", spp: int | None = None, seed: int | N
     opts = RenderOptions(method=method, spp=spp, seed=seed, threads=threads, time_limit=time_limit,
                          resolution=tuple(resolution) if resolution is not None else None, orders=orders,
                          max_depth=max_depth, components=components,
+                         samples=tuple(samples) if samples is not None else None,
                          cache_dir=Path(cache_dir) if cache_dir is not None else None, quiet=not progress)
     r = render_loaded(scene.config, scene.path, opts)
     return Result(r.image, dict(r.layers), r.metadata, r.summary, r.problem)

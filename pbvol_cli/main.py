@@ -123,6 +123,8 @@ def render(
     as_json: JsonOpt = False,
     timings: Annotated[bool, typer.Option(help="record times in the EXR metadata (--no-timings: leave them and the "
                                           "writing date out, so the same render gives the same bytes)")] = True,
+    samples: Annotated[Optional[str], typer.Option(help="A:B: render samples A .. B-1 of the scene's sequence "
+                                                   "(volpath), a part for `pbvol merge`")] = None,
 ):
     """Render SCENE to an EXR image (float32 RGB with metadata)."""
     from pbvol_cli.pipeline.cache import cache_dir as resolve_cache
@@ -132,13 +134,45 @@ def render(
         resolve_cache(cache_dir)
         opts = RenderOptions(method=method, spp=spp, seed=seed, threads=threads, time_limit=time_limit,
                              resolution=_parse_resolution(resolution), orders=orders, max_depth=max_depth,
-                             components=components, cache_dir=cache_dir, quiet=quiet, timings=timings)
+                             components=components, cache_dir=cache_dir, quiet=quiet, timings=timings,
+                             samples=_parse_samples(samples))
         summary = render_scene(scene, output, opts, preview=preview, reference=reference, exposure=exposure)
     except RenderFailed as e:
         _fail(e, EXIT_RENDER_FAILED)
     except (PbvolError, OSError) as e:
         _fail(e)
     typer.echo(json.dumps(summary) if as_json else format_summary(summary))
+
+
+def _parse_samples(text: str | None) -> tuple[int, int] | None:
+    if text is None:
+        return None
+    a, sep, b = text.partition(":")
+    try:
+        first, end = int(a), int(b)
+    except ValueError:
+        raise PbvolError(f"--samples: expected A:B (samples A .. B-1), got {text!r}") from None
+    if not sep or not 0 <= first < end <= MAX_SPP:
+        raise PbvolError(f"--samples: expected A:B with 0 <= A < B <= {MAX_SPP}, got {text!r}")
+    return first, end
+
+
+@app.command()
+def merge(
+    parts: Annotated[list[Path], typer.Argument(help="EXRs rendered with --samples (their .samples.npz beside)")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="merged image (.exr)")],
+    quiet: QuietOpt = False,
+):
+    """Merge renders of sample ranges (render --samples A:B) into one image, the same bit for bit as one render of
+    the union; refuses parts of another scene, seed or method, and ranges that overlap or leave a gap."""
+    from pbvol_cli.pipeline.render import merge_parts
+
+    try:
+        meta = merge_parts(parts, output)
+    except (PbvolError, OSError) as e:
+        _fail(e)
+    if not quiet:
+        typer.echo(f"merged {len(parts)} parts: samples {meta['samples']} -> {output}")
 
 
 @app.command("precompute-lut")

@@ -184,7 +184,11 @@ def test_every_command_takes_quiet(tmp_path):
     mat = tmp_path / "m.toml"
     mat.write_text('albedo = 0.9\nmean_free_path = 1.0\n')
     cache = ["--cache-dir", str(tmp_path / "cache")]
+    for part in ("0:1", "1:2"):
+        assert runner.invoke(app, ["render", str(path), "-o", str(tmp_path / f"{part[0]}.exr"), "--samples", part,
+                                   "-q"]).exit_code == 0
     runs = {"render": ["render", str(path), "-o", str(tmp_path / "x.exr")],
+            "merge": ["merge", str(tmp_path / "0.exr"), str(tmp_path / "1.exr"), "-o", str(tmp_path / "m.exr")],
             "compare": ["compare", str(tmp_path / "a.exr"), str(tmp_path / "a.exr")],
             "precompute-lut": ["precompute-lut", str(mat), "--particles", "2000", *cache],
             "place-samples": ["place-samples", str(path), *cache],

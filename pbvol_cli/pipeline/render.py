@@ -37,6 +37,7 @@ class RenderOptions:
     cache_dir: Path | None = None
     quiet: bool = False
     timings: bool = True  # False: no times, peaks or cache reuse in the file, a fixed date: byte-identical reruns
+    samples: tuple[int, int] | None = None  # (A, B): samples A .. B-1 of the scene's sequence (volpath; merge)
 
 
 def scene_hash(scene: C.Scene, built) -> str:
@@ -115,6 +116,7 @@ class Rendered:
     metadata: dict
     summary: dict
     problem: str | None
+    sums: object = None  # volpath's render/sample_sums.SampleSums (what pbvol merge needs)
 
 
 def render_loaded(scene: C.Scene, scene_path: Path, opts: RenderOptions, reference_size=None) -> Rendered:
@@ -126,6 +128,15 @@ def render_loaded(scene: C.Scene, scene_path: Path, opts: RenderOptions, referen
         raise PbvolError(f"unknown method {opts.method!r}; expected one of: {', '.join(METHODS)}")
     rs = scene.render
     spp = opts.spp or rs.spp
+    first = 0
+    if opts.samples is not None:
+        first, end = opts.samples
+        if opts.method != "volpath":
+            raise PbvolError(f"--samples: only --method volpath renders a range of samples so far, not "
+                             f"{opts.method}")
+        if not 0 <= first < end:
+            raise PbvolError(f"--samples {first}:{end}: expected A:B with 0 <= A < B")
+        spp = end - first
     seed = rs.seed if opts.seed is None else opts.seed
     max_depth = opts.max_depth or rs.max_depth
     time_limit = opts.time_limit if opts.time_limit is not None else rs.time_limit
@@ -155,13 +166,13 @@ def render_loaded(scene: C.Scene, scene_path: Path, opts: RenderOptions, referen
             with prog:
                 img, spp_done, stats = render_volpath(
                     built, spp, seed, max_depth, rs.volpath.rr_depth, opts.orders, rs.volpath.batch_paths, threads,
-                    time_limit, update,
+                    time_limit, update, first_sample=first,
                 )
     elapsed = stats["time_s"]
     meta = {
         "method": opts.method, "spp": spp_done, "seed": seed, "threads": threads, "version": __version__,
         "scene": str(scene_path), "scene_hash": scene_hash(scene, built),
-        "orders": opts.orders or "all", "max_depth": max_depth,
+        "orders": opts.orders or "all", "max_depth": max_depth, "samples": f"{first}:{first + spp_done}",
     }
     if opts.timings:
         meta.update({"time_s": round(elapsed, 4), "build_s": round(t_build, 4),
@@ -179,7 +190,7 @@ def render_loaded(scene: C.Scene, scene_path: Path, opts: RenderOptions, referen
     if stages:
         summary["stages"] = stages
     problem = implausible_pixels(img, layers, float(built.lights[:, LIGHT_RGB:LIGHT_RGB + 3].max(initial=0.0)))
-    return Rendered(img, layers, meta, summary, problem)
+    return Rendered(img, layers, meta, summary, problem, stats.get("sums"))
 
 
 def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview: Path | None = None,
@@ -212,6 +223,8 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
     write_exr(out_path, img.astype(np.float32), r.metadata,
               layers={k: v.astype(np.float32) for k, v in layers.items()} if layers else None,
               date_time=None if opts.timings else FIXED_DATE_TIME)
+    if opts.samples is not None and r.sums is not None:
+        save_sample_sums(out_path, r.sums, r.metadata)
     if r.problem:
         raise RenderFailed(f"{out_path}: written, but {r.problem}: the render failed (please report the scene)")
     if preview is not None:
@@ -224,6 +237,63 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
         summary["mse"] = m["mse"]
         summary["rel_mse"] = m["rel_mse"]
     return summary
+
+
+def sums_path(exr: Path) -> Path:
+    """Where a part rendered with --samples keeps its exact per-pixel sums (beside its EXR)."""
+    return Path(exr).with_name(Path(exr).name + ".samples.npz")
+
+
+def save_sample_sums(exr: Path, sums, meta: dict):
+    from pbvol_cli.pipeline.cache import save_npz_atomic
+
+    save_npz_atomic(sums_path(exr), scene_hash=np.array(meta["scene_hash"]), seed=np.array(meta["seed"]),
+                    **sums.arrays())
+
+
+def merge_parts(parts: list[Path], out_path: Path) -> dict:
+    """pbvol merge: the parts' exact sums (render --samples) pooled into one image, the same bit for bit as one
+    render of their union. Refuses parts of other scenes, seeds or methods, overlapping ranges or gaps. Returns
+    the merged metadata."""
+    from pbvol_cli.imageio import read_exr, write_exr
+    from pbvol_cli.pipeline.cache import load_npz
+    from pbvol_cli.render.sample_sums import SampleSums
+
+    out_path = Path(out_path)
+    if out_path.suffix.lower() != ".exr":
+        raise PbvolError(f"{out_path}: the output must be an .exr file")
+    writable_file(out_path, "the output")
+    if not parts:
+        raise PbvolError("merge: no parts given")
+    metas, sums = [], []
+    for part in parts:
+        img, meta = read_exr(part)
+        data = load_npz(sums_path(part), ("lo", "hi", "sums", "scene_hash"))
+        if data is None:
+            raise PbvolError(f"{part}: its sums {sums_path(part).name} are missing or damaged; render it again with "
+                             "--samples A:B")
+        if meta.get("method") != "volpath":
+            raise PbvolError(f"{part}: method {meta.get('method')}; merge takes volpath parts")
+        if str(data["scene_hash"]) != meta.get("scene_hash"):
+            raise PbvolError(f"{part}: its sums belong to another render (scene hash)")
+        metas.append(meta)
+        sums.append(SampleSums.from_arrays(data))
+    for part, meta in zip(parts[1:], metas[1:]):
+        for key in ("scene_hash", "seed", "orders", "max_depth"):
+            if meta.get(key) != metas[0].get(key):
+                raise PbvolError(f"{part}: {key} {meta.get(key)} differs from {parts[0]}'s {metas[0].get(key)}")
+    try:
+        merged = SampleSums.merged(sums)
+    except ValueError as e:
+        raise PbvolError(f"merge: the parts' sample ranges overlap or leave a gap ({e})") from None
+    lo, hi = merged.range
+    H, W = read_exr(parts[0])[0].shape[:2]
+    image = (merged.total() / (hi - lo)).reshape(H, W, 3)
+    meta = {k: v for k, v in metas[0].items() if not k.startswith("stage_") and k not in ("time_s", "build_s")}
+    meta.update({"spp": hi - lo, "samples": f"{lo}:{hi}", "merged_parts": len(parts)})
+    write_exr(out_path, image.astype(np.float32), meta, date_time=FIXED_DATE_TIME)
+    save_sample_sums(out_path, merged, meta)
+    return meta
 
 
 def _render_pbl(scene, built, spp, seed, threads, time_limit, opts, scene_path):

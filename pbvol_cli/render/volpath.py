@@ -35,10 +35,25 @@ import numpy as np
 from numba import njit, prange
 
 from pbvol_cli.geometry.distance_grid import mesh_distance_bound
+from pbvol_cli.geometry.intersect import analytic_hit, mesh_shading_normal
 from pbvol_cli.geometry.raycast import TriangleCaster
-from pbvol_cli.geometry.scene_build import (DIELECTRIC, HOMOGENEOUS, MED_G, MED_KIND, MED_PHASE, MED_SEALED,
-                                           MED_SIGMA_A, MIRROR, NULL, SPH_CENTER, SPH_RADIUS, SPH_SURFACE,
-                                           SURF_ALBEDO, SURF_TYPE, BuiltScene)
+from pbvol_cli.geometry.scene_build import (
+    DIELECTRIC,
+    HOMOGENEOUS,
+    MED_G,
+    MED_KIND,
+    MED_PHASE,
+    MED_SEALED,
+    MED_SIGMA_A,
+    MIRROR,
+    NULL,
+    SPH_CENTER,
+    SPH_RADIUS,
+    SPH_SURFACE,
+    SURF_ALBEDO,
+    SURF_TYPE,
+    BuiltScene,
+)
 from pbvol_cli.jit import as_runtime
 from pbvol_cli.physics.fresnel import reflect
 from pbvol_cli.physics.lights import ENVIRONMENT, LIGHT_RGB, LIGHT_TYPE, emitted_toward, light_pdf, light_sample
@@ -47,7 +62,7 @@ from pbvol_cli.physics.sampling import cosine_hemisphere, power_heuristic, rand,
 from pbvol_cli.render.camera import generate_camera_rays
 from pbvol_cli.render.interfaces import dielectric_choice, incident_side, medium_beyond, shadow_ray_length
 from pbvol_cli.render.media import flight_weight, free_flight, segment_transmittance, tentative_collision
-from pbvol_cli.geometry.intersect import analytic_hit, mesh_shading_normal
+from pbvol_cli.render.sample_sums import SampleSums
 
 DEAD, NEED_CAST, CONTINUE = 0, 1, 2
 INF = np.inf
@@ -582,8 +597,11 @@ def scene_tuple(bs: BuiltScene) -> SceneTables:
 
 
 def render_volpath(bs: BuiltScene, spp: int, seed: int, max_depth: int, rr_depth: int, orders: str | None,
-                   batch_paths: int, threads: int, time_limit: float | None = None, progress=None):
-    """Render; returns (image (H, W, 3) float64, spp actually rendered, statistics dict).
+                   batch_paths: int, threads: int, time_limit: float | None = None, progress=None,
+                   first_sample: int = 0):
+    """Render samples first_sample .. first_sample + spp - 1 of every pixel; returns (image (H, W, 3) float64, spp
+    actually rendered, statistics dict; stats["sums"]: their render/sample_sums.SampleSums, which merge exactly
+    with other ranges').
 
     progress(done_paths, total_paths) is called after every batch.
     """
@@ -596,18 +614,25 @@ def render_volpath(bs: BuiltScene, spp: int, seed: int, max_depth: int, rr_depth
     # Batches hold whole passes (all pixels, one or more samples) so a time limit leaves equal counts.
     per_batch = max(npix, (batch_paths // npix) * npix) if npix <= batch_paths else batch_paths
     P = Paths(min(per_batch, total))
-    image = np.zeros((npix, 3))
+    sums = SampleSums()
+    current = np.zeros((npix, 3))  # the sample being filled (one path per pixel: values placed, not added)
     t0 = time.perf_counter()
     done = 0
     casts = 0
     steps = 0
+    start = first_sample * npix
     while done < total:
         n = min(per_batch, total - done)
-        generate_camera_rays(bs.camera, seed, done, n, P.pos, P.dir, P.pixel, P.rng)
+        generate_camera_rays(bs.camera, seed, start + done, n, P.pos, P.dir, P.pixel, P.rng)
         c_, s_ = _run_batch(P, n, caster, S, misc)
         casts, steps = casts + c_, steps + s_
-        for c in range(3):
-            image[:, c] += np.bincount(P.pixel[:n], weights=P.L[:n, c], minlength=npix)
+        k0 = 0
+        while k0 < n:  # the batch's samples, or its share of them (a batch smaller than the image)
+            k1 = min(n, k0 + npix - (done + k0) % npix)
+            current[P.pixel[k0:k1]] = P.L[k0:k1]
+            if (done + k1) % npix == 0:
+                sums.add_sample(first_sample + (done + k1) // npix - 1, current)
+            k0 = k1
         done += n
         if progress is not None:
             progress(done, total)
@@ -615,6 +640,7 @@ def render_volpath(bs: BuiltScene, spp: int, seed: int, max_depth: int, rr_depth
             break
     caster.close()
     spp_done = done // npix
+    image = sums.total() if sums.nodes else np.zeros((npix, 3))
     img = (image / max(spp_done, 1)).reshape(H, W, 3)
     elapsed = time.perf_counter() - t0
-    return img, spp_done, {"time_s": elapsed, "paths": done, "casts": casts, "steps": steps}
+    return img, spp_done, {"time_s": elapsed, "paths": done, "casts": casts, "steps": steps, "sums": sums}
