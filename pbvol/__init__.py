@@ -75,7 +75,7 @@ def render(scene, method: str = "volpath", spp: int | None = None, seed: int | N
            orders: str | None = None, components: str | None = None, max_depth: int | None = None,
            samples: tuple[int, int] | None = None, cache_dir=None, progress: bool = False) -> Result:
     """Render a Scene (or a path or dict, loaded by load_scene). The arguments are the command line's options
-    (None: the scene's setting; samples=(A, B): samples A .. B-1, volpath); progress: show the progress bar on
+    (None: the scene's setting; samples=(A, B): samples (passes) A .. B-1); progress: show the progress bar on
     stderr. Tables and light samples come from the
     cache (cache_dir, else $PBVOL_CACHE_DIR, else ~/.cache/pbvol)."""
     from pbvol_cli.pipeline.render import RenderOptions, render_loaded

@@ -123,8 +123,8 @@ def render(
     as_json: JsonOpt = False,
     timings: Annotated[bool, typer.Option(help="record times in the EXR metadata (--no-timings: leave them and the "
                                           "writing date out, so the same render gives the same bytes)")] = True,
-    samples: Annotated[Optional[str], typer.Option(help="A:B: render samples A .. B-1 of the scene's sequence "
-                                                   "(volpath), a part for `pbvol merge`")] = None,
+    samples: Annotated[Optional[str], typer.Option(help="A:B: render samples (passes) A .. B-1 of the scene's "
+                                                   "sequence, a part for `pbvol merge`")] = None,
 ):
     """Render SCENE to an EXR image (float32 RGB with metadata)."""
     from pbvol_cli.pipeline.cache import cache_dir as resolve_cache

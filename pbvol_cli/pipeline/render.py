@@ -17,6 +17,7 @@ from pbvol_cli.physics.lights import LIGHT_RGB
 from pbvol_cli.pipeline.progress import CompileMonitor, available_memory, peak_memory_mb, progress_bar, set_threads
 
 METHODS = ("volpath", "pbl", "dipole", "raymarch", "vpl")
+VOLPATH_SUMS = "image"  # the one sum of a volpath render (it has no layers)
 RAYMARCH_LAYERS = ("volume", "surface")  # the ray marcher's: emission and single scattering, the camera paths' rest
 VPL_LAYERS = ("volume", "vpl", "surface")  # and the VPLs' light
 DIPOLE_LAYERS = ("single", "diffusion", "surface")  # the dipole's image: pbl's single scattering, the diffusion
@@ -37,7 +38,7 @@ class RenderOptions:
     cache_dir: Path | None = None
     quiet: bool = False
     timings: bool = True  # False: no times, peaks or cache reuse in the file, a fixed date: byte-identical reruns
-    samples: tuple[int, int] | None = None  # (A, B): samples A .. B-1 of the scene's sequence (volpath; merge)
+    samples: tuple[int, int] | None = None  # (A, B): samples (passes) A .. B-1 of the scene's sequence (merge)
 
 
 def scene_hash(scene: C.Scene, built) -> str:
@@ -116,7 +117,9 @@ class Rendered:
     metadata: dict
     summary: dict
     problem: str | None
-    sums: object = None  # volpath's render/sample_sums.SampleSums (what pbvol merge needs)
+    sums: dict | None = None  # {layer: render/sample_sums.SampleSums}, the image their means' sum in this order
+    # (VOLPATH_SUMS: volpath's image itself); what pbvol merge needs
+    surface_paths: list | None = None  # the pass-based methods' mean camera paths per pixel, per pass
 
 
 def render_loaded(scene: C.Scene, scene_path: Path, opts: RenderOptions, reference_size=None) -> Rendered:
@@ -131,9 +134,6 @@ def render_loaded(scene: C.Scene, scene_path: Path, opts: RenderOptions, referen
     first = 0
     if opts.samples is not None:
         first, end = opts.samples
-        if opts.method != "volpath":
-            raise PbvolError(f"--samples: only --method volpath renders a range of samples so far, not "
-                             f"{opts.method}")
         if not 0 <= first < end:
             raise PbvolError(f"--samples {first}:{end}: expected A:B with 0 <= A < B")
         spp = end - first
@@ -153,7 +153,9 @@ def render_loaded(scene: C.Scene, scene_path: Path, opts: RenderOptions, referen
     with CompileMonitor(opts.quiet) as compiling:
         if opts.method in ("pbl", "dipole", "raymarch", "vpl"):
             img, layers, stats, stages = _render_pbl(scene, built, spp, seed, threads, time_limit, opts,
-                                                              scene_path)
+                                                     scene_path, first)
+            if "sums" in stats:  # the kept layers' sums, in the order the image adds them
+                stats["sums"] = {k: v for k, v in stats["sums"].items() if k in layers}
             spp_done = stats["spp"]
         else:
             from pbvol_cli.render.volpath import orders_mask, render_volpath
@@ -168,6 +170,8 @@ def render_loaded(scene: C.Scene, scene_path: Path, opts: RenderOptions, referen
                     built, spp, seed, max_depth, rs.volpath.rr_depth, opts.orders, rs.volpath.batch_paths, threads,
                     time_limit, update, first_sample=first,
                 )
+            if "sums" in stats:
+                stats["sums"] = {VOLPATH_SUMS: stats["sums"]}
     elapsed = stats["time_s"]
     meta = {
         "method": opts.method, "spp": spp_done, "seed": seed, "threads": threads, "version": __version__,
@@ -190,7 +194,7 @@ def render_loaded(scene: C.Scene, scene_path: Path, opts: RenderOptions, referen
     if stages:
         summary["stages"] = stages
     problem = implausible_pixels(img, layers, float(built.lights[:, LIGHT_RGB:LIGHT_RGB + 3].max(initial=0.0)))
-    return Rendered(img, layers, meta, summary, problem, stats.get("sums"))
+    return Rendered(img, layers, meta, summary, problem, stats.get("sums"), stats.get("surface_paths"))
 
 
 def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview: Path | None = None,
@@ -224,7 +228,7 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
               layers={k: v.astype(np.float32) for k, v in layers.items()} if layers else None,
               date_time=None if opts.timings else FIXED_DATE_TIME)
     if opts.samples is not None and r.sums is not None:
-        save_sample_sums(out_path, r.sums, r.metadata)
+        save_sample_sums(out_path, r.sums, r.metadata, r.surface_paths)
     if r.problem:
         raise RenderFailed(f"{out_path}: written, but {r.problem}: the render failed (please report the scene)")
     if preview is not None:
@@ -244,20 +248,46 @@ def sums_path(exr: Path) -> Path:
     return Path(exr).with_name(Path(exr).name + ".samples.npz")
 
 
-def save_sample_sums(exr: Path, sums, meta: dict):
+def save_sample_sums(exr: Path, sums: dict, meta: dict, surface_paths=None):
+    """The part's sums beside its EXR: per layer (in the image's order) the nodes of its SampleSums, and each pass's
+    mean camera paths per pixel (the pass-based methods)."""
     from pbvol_cli.pipeline.cache import save_npz_atomic
 
+    arrays = {f"{name}.{k}": v for name, ss in sums.items() for k, v in ss.arrays().items()}
+    if surface_paths is not None:
+        arrays["surface_paths"] = np.asarray(surface_paths, np.float64)
     save_npz_atomic(sums_path(exr), scene_hash=np.array(meta["scene_hash"]), seed=np.array(meta["seed"]),
-                    **sums.arrays())
+                    method=np.array(meta["method"]), layers=np.array(list(sums), dtype=str), **arrays)
+
+
+def _load_part(part: Path):
+    """(metadata, {layer: SampleSums}, each pass's surface paths or None, the EXR's layer names) of one part."""
+    from pbvol_cli.imageio import read_exr, read_layers
+    from pbvol_cli.pipeline.cache import load_npz
+    from pbvol_cli.render.sample_sums import SampleSums
+
+    _, meta = read_exr(part)
+    data = load_npz(sums_path(part), ("layers", "scene_hash", "method"))
+    if data is None or any(f"{n}.sums" not in data for n in data["layers"]):
+        raise PbvolError(f"{part}: its sums {sums_path(part).name} are missing or damaged; render it again with "
+                         "--samples A:B")
+    if str(data["scene_hash"]) != meta.get("scene_hash") or str(data["method"]) != meta.get("method"):
+        raise PbvolError(f"{part}: its sums belong to another render (scene hash, method)")
+    sums = {str(n): SampleSums.from_arrays({k: data[f"{n}.{k}"] for k in ("lo", "hi", "sums")})
+            for n in data["layers"]}
+    return meta, sums, data.get("surface_paths"), list(read_layers(part))
+
+
+MERGE_MATCH = ("method", "scene_hash", "seed", "orders", "max_depth", "surface_paths_setting")  # what parts share
 
 
 def merge_parts(parts: list[Path], out_path: Path) -> dict:
-    """pbvol merge: the parts' exact sums (render --samples) pooled into one image, the same bit for bit as one
-    render of their union. Refuses parts of other scenes, seeds or methods, overlapping ranges or gaps. Returns
-    the merged metadata."""
+    """pbvol merge: the parts' exact sums (render --samples) pooled into one image and its layers, the same bit for
+    bit as one render of their union (for pbl with auto surface paths, as the parts' passes were rendered:
+    first_path_indices). Refuses parts of other scenes, seeds or methods, overlapping ranges or gaps. Returns the
+    merged metadata."""
     from pbvol_cli.imageio import read_exr, write_exr
-    from pbvol_cli.pipeline.cache import load_npz
-    from pbvol_cli.render.sample_sums import SampleSums
+    from pbvol_cli.render.sample_sums import SampleSums, layer_means
 
     out_path = Path(out_path)
     if out_path.suffix.lower() != ".exr":
@@ -265,38 +295,37 @@ def merge_parts(parts: list[Path], out_path: Path) -> dict:
     writable_file(out_path, "the output")
     if not parts:
         raise PbvolError("merge: no parts given")
-    metas, sums = [], []
-    for part in parts:
-        img, meta = read_exr(part)
-        data = load_npz(sums_path(part), ("lo", "hi", "sums", "scene_hash"))
-        if data is None:
-            raise PbvolError(f"{part}: its sums {sums_path(part).name} are missing or damaged; render it again with "
-                             "--samples A:B")
-        if meta.get("method") != "volpath":
-            raise PbvolError(f"{part}: method {meta.get('method')}; merge takes volpath parts")
-        if str(data["scene_hash"]) != meta.get("scene_hash"):
-            raise PbvolError(f"{part}: its sums belong to another render (scene hash)")
-        metas.append(meta)
-        sums.append(SampleSums.from_arrays(data))
-    for part, meta in zip(parts[1:], metas[1:]):
-        for key in ("scene_hash", "seed", "orders", "max_depth"):
-            if meta.get(key) != metas[0].get(key):
-                raise PbvolError(f"{part}: {key} {meta.get(key)} differs from {parts[0]}'s {metas[0].get(key)}")
+    loaded = [_load_part(part) for part in parts]
+    meta0, sums0 = loaded[0][0], loaded[0][1]
+    for part, (meta, sums, _, _) in zip(parts[1:], loaded[1:]):
+        for key in MERGE_MATCH:
+            if meta.get(key) != meta0.get(key):
+                raise PbvolError(f"{part}: {key} {meta.get(key)} differs from {parts[0]}'s {meta0.get(key)}")
+        if list(sums) != list(sums0):
+            raise PbvolError(f"{part}: layers {', '.join(sums)} differ from {parts[0]}'s {', '.join(sums0)}")
     try:
-        merged = SampleSums.merged(sums)
+        merged = {name: SampleSums.merged([p[1][name] for p in loaded]) for name in sums0}
     except ValueError as e:
         raise PbvolError(f"merge: the parts' sample ranges overlap or leave a gap ({e})") from None
-    lo, hi = merged.range
+    lo, hi = next(iter(merged.values())).range
     H, W = read_exr(parts[0])[0].shape[:2]
-    image = (merged.total() / (hi - lo)).reshape(H, W, 3)
-    meta = {k: v for k, v in metas[0].items() if not k.startswith("stage_") and k not in ("time_s", "build_s")}
+    means = layer_means(merged, hi - lo, (H, W, 3))
+    image = sum(means.values())
+    layers = {name: means.get(name, np.zeros((H, W, 3))).astype(np.float32) for name in loaded[0][3]}
+    meta = {k: v for k, v in meta0.items() if not k.startswith("stage_") and k not in ("time_s", "build_s")}
     meta.update({"spp": hi - lo, "samples": f"{lo}:{hi}", "merged_parts": len(parts)})
-    write_exr(out_path, image.astype(np.float32), meta, date_time=FIXED_DATE_TIME)
-    save_sample_sums(out_path, merged, meta)
+    ks = None
+    if loaded[0][2] is not None:  # the passes' camera paths, in pass order (the parts sorted by their ranges)
+        order = sorted(range(len(parts)), key=lambda i: next(iter(loaded[i][1].values())).range[0])
+        ks = np.concatenate([loaded[i][2] for i in order])
+        meta["surface_paths"] = float(np.mean(ks))
+        meta["surface_paths_per_pass"] = ",".join(f"{k:.4g}" for k in ks)
+    write_exr(out_path, image.astype(np.float32), meta, layers=layers or None, date_time=FIXED_DATE_TIME)
+    save_sample_sums(out_path, merged, meta, ks)
     return meta
 
 
-def _render_pbl(scene, built, spp, seed, threads, time_limit, opts, scene_path):
+def _render_pbl(scene, built, spp, seed, threads, time_limit, opts, scene_path, first_pass=0):
     """Light samples and tables from the cache (built when missing), then the passes (pointbased/passes.py). The
     dipole (opts.method) takes the point-based method's single scattering, no tables, and its diffusion term from
     the irradiance samples (dipole/)."""
@@ -308,7 +337,7 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts, scene_path):
     from pbvol_cli.pointbased.passes import TABLE_COMPONENTS, render_passes
 
     if opts.method in ("raymarch", "vpl"):
-        return _render_raymarch(scene, built, spp, seed, threads, time_limit, opts)
+        return _render_raymarch(scene, built, spp, seed, threads, time_limit, opts, first_pass)
     homogeneous_media_only(built, opts.method, scene_path)
     pbl = scene.render.pbl
     dipole = opts.method == "dipole"
@@ -357,7 +386,7 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts, scene_path):
     with prog:
         img, layers, stats, timings = render_passes(
             built, res.samples if res else None, tables, pbl, seed, spp, threads, update, time_limit,
-            bounced_cache(cache, res.path, pbl, table_names) if res else None, entry)
+            bounced_cache(cache, res.path, pbl, table_names) if res else None, entry, first_pass)
     if dipole:
         layers = {k: layers.get(k, np.zeros_like(img)) for k in DIPOLE_LAYERS}
     stages["render_s"] = stats["time_s"]
@@ -367,7 +396,7 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts, scene_path):
     return img, layers, stats, stages
 
 
-def _render_raymarch(scene, built, spp, seed, threads, time_limit, opts):
+def _render_raymarch(scene, built, spp, seed, threads, time_limit, opts, first_pass=0):
     """The ray-marching integrator (render/raymarch.py) or, for opts.method "vpl", it and the VPLs (vpl/gather.py):
     the point-based method's camera paths, no light samples, each medium segment marched. Layers: RAYMARCH_LAYERS,
     VPL_LAYERS."""
@@ -389,7 +418,7 @@ def _render_raymarch(scene, built, spp, seed, threads, time_limit, opts):
     prog, update = progress_bar(opts.quiet, f"{opts.method} {W}x{H} {spp} spp", "pixel samples")
     with prog:
         img, layers, stats = render_pbl(built, lambda p: {}, spp, seed, pbl, threads, update, time_limit=time_limit,
-                                        segment=segment)
+                                        segment=segment, first_pass=first_pass)
     return img, {k: layers[k] for k in names}, stats, {}
 
 

@@ -36,6 +36,7 @@ from pbvol_cli.pointbased.radiance_cache import cache_settings
 from pbvol_cli.pointbased.volume_samples import medium_params, scattered_share
 from pbvol_cli.render.camera import camera_rays_for
 from pbvol_cli.render.interfaces import dielectric_fresnel, incident_side, indices, medium_beyond, shadow_ray_length
+from pbvol_cli.render.sample_sums import SampleSums, layer_means
 
 COMPONENTS = ("single", "double", "multiple", "bounced")
 LAYER_BOUNCED = 3  # contrib[ray, layer, channel]: gather's three layers, then the bounced samples' sum
@@ -278,7 +279,7 @@ def pass_paths(k: np.ndarray, first: np.ndarray):
 
 def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads: int, progress=None,
                bounced_terms=("single", "double", "multiple"), time_limit: float | None = None, entry=None,
-               segment=None):
+               segment=None, first_pass: int = 0):
     """Renders spp passes with the settings pbl (config.PblSettings); pass p uses the light samples
     media_for_pass(p) ({medium: (SampleSet of the lights' samples, SampleSet of the bounced samples or None)}).
 
@@ -297,8 +298,10 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     gather) and the transmittance the path goes on with,
     segment.shadow(caster, pos, dirs, dist, light, medium) the transmittance of the surfaces' shadow rays
     (render/raymarch.RayMarcher; its through_dielectrics: whether they cross smooth dielectrics); the media then need
-    not be homogeneous. Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats; stats["spp"]: the passes
-    rendered, stats["surface_paths"]: the mean paths per pixel of each pass)."""
+    not be homogeneous. first_pass: the passes are first_pass .. first_pass + spp - 1 of the scene's sequence
+    (render --samples; see first_path_indices). Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats;
+    stats["spp"]: the passes rendered, stats["surface_paths"]: the mean paths per pixel of each pass, stats["sums"]:
+    {layer: render/sample_sums.SampleSums over the passes}, in the order the image adds the layers)."""
     W, H = bs.resolution
     npix = W * H
     settings = gather_settings(pbl, pbl.components)
@@ -308,22 +311,22 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     pool = ThreadPoolExecutor(threads) if threads > 1 else None
     names = (*COMPONENTS, "surface", *((entry.layer,) if entry is not None else ()),
              *(segment.layers if segment is not None else ()))
-    layers = {name: np.zeros((npix, 3)) for name in names}
+    sums = {name: SampleSums() for name in names}  # each layer's sum over passes, merged exactly by pbvol merge
     stats = PixelStatistics(npix, W)
     ks = []
     t0 = time.perf_counter()
     chunk = 1 << 18
-    done = 0  # camera paths traced so far
-    samples_so_far = np.zeros(npix, np.int64)  # each pixel's (its next path's sample index)
+    done, first_sample = first_path_indices(pbl.surface_paths, first_pass, npix)
+    samples_so_far = np.full(npix, first_sample, np.int64)  # each pixel's (its next path's sample index)
     passes = 0
-    for p in range(spp):
-        if time_limit is not None and p > 0 and time.perf_counter() - t0 > time_limit:
+    for p in range(first_pass, first_pass + spp):
+        if time_limit is not None and passes > 0 and time.perf_counter() - t0 > time_limit:
             break
         passes += 1
         if pbl.surface_paths > 0:
             k = np.full(npix, pbl.surface_paths, np.int64)
         else:  # auto: from the passes so far, once two are in (the image so far weighs them as relMSE does)
-            k = stats.next_paths(sum(layers.values()) / p) if p else None
+            k = stats.next_paths(sum(s.total() for s in sums.values()) / (passes - 1)) if passes > 1 else None
             if k is None:
                 k = np.full(npix, AUTO_FIRST_PATHS, np.int64)
         ks.append(float(k.mean()))
@@ -349,18 +352,28 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
             for ch in range(3):
                 surface_sq[:, ch] += np.bincount(pixels[part], weights=path_surface[:, ch] ** 2, minlength=npix)
             if progress is not None:
-                progress(p * npix + part.stop * npix // per_pass, spp * npix)
+                progress((passes - 1) * npix + part.stop * npix // per_pass, spp * npix)
         done += per_pass
         samples_so_far += k
         for name in names:
-            layers[name] += acc[name] / k[:, None]
+            sums[name].push(p, p + 1, acc[name] / k[:, None])
         stats.add(k, acc["surface"], surface_sq, sum(acc[c] for c in names if c != "surface") / k[:, None])
     caster.close()
     if pool is not None:
         pool.shutdown()
-    out = {name: (v / passes).reshape(H, W, 3) for name, v in layers.items()}
+    out = layer_means(sums, passes, (H, W, 3))
     image = sum(out.values())
-    return image, out, {"time_s": time.perf_counter() - t0, "spp": passes, "surface_paths": ks}
+    return image, out, {"time_s": time.perf_counter() - t0, "spp": passes, "surface_paths": ks, "sums": sums}
+
+
+def first_path_indices(surface_paths: int, first_pass: int, npix: int) -> tuple[int, int]:
+    """(camera paths traced before pass first_pass, each pixel's first sample index): what seeds the camera paths'
+    random streams. With a fixed count k both are what a render from pass 0 reaches there, so a render of passes
+    A..B-1 repeats those passes of a longer render exactly. With auto counts they depend on the passes before, which
+    a part does not render: its streams then start past any the earlier passes can use (AUTO_MAX_PIXEL_PATHS a
+    pixel and pass), independent of them, and its counts follow its own passes."""
+    k = surface_paths if surface_paths > 0 else AUTO_MAX_PIXEL_PATHS
+    return first_pass * npix * k, first_pass * k
 
 
 def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samples, evm, kpaths, npix, settings,

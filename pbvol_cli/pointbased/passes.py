@@ -34,11 +34,12 @@ def kernel_tables(tables: list) -> tuple:
 
 
 def render_passes(built: BuiltScene, samples, tables: dict, pbl, seed: int, spp: int, threads: int, progress=None,
-                  time_limit: float | None = None, first_bounced=None, entry=None):
+                  time_limit: float | None = None, first_bounced=None, entry=None, first_pass: int = 0):
     """Renders spp passes of the point-based method (no pass starts after time_limit seconds). samples: the cached
     LightSamples of pass 0 (None: no medium); tables: {medium: [MSTable or None] x 3}; pbl: config.PblSettings
     (its components included); first_bounced(m, build): pass 0's bounced samples of medium m, from a cache or
-    build() (None: always built); entry: camera_pass.render_pbl's (the dipole's diffusion term).
+    build() (None: always built); entry: camera_pass.render_pbl's (the dipole's diffusion term); first_pass: the
+    first pass's index in the scene's sequence (render --samples; pass p's light samples are seeded by p).
     Returns (image, layers, stats, timings): render_pbl's, and the seconds spent on the later passes' light
     samples and on the bounced samples."""
     expanded = {m: kernel_tables(t) for m, t in tables.items()}
@@ -64,7 +65,7 @@ def render_passes(built: BuiltScene, samples, tables: dict, pbl, seed: int, spp:
         return {m: (lit[m], bounced[m]) for m in lit}
 
     image, layers, stats = render_pbl(built, media_for_pass, spp, seed, pbl, threads, progress,
-                                      time_limit=time_limit, entry=entry)
+                                      time_limit=time_limit, entry=entry, first_pass=first_pass)
     return image, layers, stats, timings
 
 

@@ -66,3 +66,9 @@ class SampleSums:
         out = cls()
         out.nodes = [(int(lo), int(hi), np.asarray(s, np.float64)) for lo, hi, s in zip(d["lo"], d["hi"], d["sums"])]
         return out
+
+
+def layer_means(sums: dict, count: int, shape) -> dict:
+    """{layer: its SampleSums' total / count, shaped}: the one place a render's layers (and, added in the dict's
+    order, its image) come from their sums, in a render and in pbvol merge."""
+    return {name: (s.total() / count).reshape(shape) for name, s in sums.items()}
