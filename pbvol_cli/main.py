@@ -75,6 +75,11 @@ CacheDirOpt = Annotated[Optional[Path], typer.Option(help="cache directory (else
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="no progress bar")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="print the summary as one line of JSON (for scripts)")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="rebuild even when the cache holds a matching entry")]
+DaskOpt = Annotated[Optional[str], typer.Option(help="render on a Dask cluster: a scheduler's address "
+                                                "(tcp://host:8786) or local[N] for N local worker processes; the "
+                                                "image is the same as without")]
+ShardsOpt = Annotated[Optional[int], typer.Option(min=1, max=MAX_SPP, help="with --dask: pieces of each scene's "
+                                                  "samples (default: one per worker thread)")]
 
 
 def _fail(err: Exception, code: int = EXIT_BAD_INPUT):
@@ -125,6 +130,8 @@ def render(
                                           "writing date out, so the same render gives the same bytes)")] = True,
     samples: Annotated[Optional[str], typer.Option(help="A:B: render samples (passes) A .. B-1 of the scene's "
                                                    "sequence, a part for `pbvol merge`")] = None,
+    dask: DaskOpt = None,
+    shards: ShardsOpt = None,
 ):
     """Render SCENE to an EXR image (float32 RGB with metadata)."""
     from pbvol_cli.pipeline.cache import cache_dir as resolve_cache
@@ -135,8 +142,9 @@ def render(
         opts = RenderOptions(method=method, spp=spp, seed=seed, threads=threads, time_limit=time_limit,
                              resolution=_parse_resolution(resolution), orders=orders, max_depth=max_depth,
                              components=components, cache_dir=cache_dir, quiet=quiet, timings=timings,
-                             samples=_parse_samples(samples))
-        summary = render_scene(scene, output, opts, preview=preview, reference=reference, exposure=exposure)
+                             samples=_parse_samples(samples), shards=shards)
+        summary = render_scene(scene, output, opts, preview=preview, reference=reference, exposure=exposure,
+                               dask=dask)
     except RenderFailed as e:
         _fail(e, EXIT_RENDER_FAILED)
     except (PbvolError, OSError) as e:
@@ -173,6 +181,46 @@ def merge(
         _fail(e)
     if not quiet:
         typer.echo(f"merged {len(parts)} parts: samples {meta['samples']} -> {output}")
+
+
+@app.command()
+def batch(
+    scenes: Annotated[list[Path], typer.Argument(help="scene files (TOML)")],
+    output_dir: Annotated[Path, typer.Option("-o", "--output-dir", help="folder for the images (NAME.exr for "
+                                             "NAME.toml)")],
+    method: Annotated[str, typer.Option(help="as render's")] = "volpath",
+    spp: Annotated[Optional[int], typer.Option(min=1, max=MAX_SPP, help="samples or passes per pixel (overrides "
+                                               "the scenes)")] = None,
+    seed: SeedOpt = None,
+    threads: ThreadsOpt = None,
+    resolution: Annotated[Optional[str], typer.Option(help="WIDTHxHEIGHT (overrides the scenes)")] = None,
+    dask: DaskOpt = None,
+    shards: ShardsOpt = None,
+    cache_dir: CacheDirOpt = None,
+    quiet: QuietOpt = False,
+):
+    """Render many scenes, one after the other or, with --dask, all on a cluster at once; a scene that fails is
+    reported and the others go on (exit status 3 when any failed)."""
+    from pbvol_cli.pipeline.render import RenderOptions, render_batch
+
+    try:
+        opts = RenderOptions(method=method, spp=spp, seed=seed, threads=threads,
+                             resolution=_parse_resolution(resolution), cache_dir=cache_dir, quiet=quiet,
+                             shards=shards)
+        failed = render_batch(scenes, output_dir, opts, dask, report=lambda line: _batch_line(line, quiet))
+    except (PbvolError, OSError) as e:
+        _fail(e)
+    if failed:
+        typer.echo(f"error: {failed} of {len(scenes)} scenes failed", err=True)
+        sys.exit(EXIT_RENDER_FAILED)
+
+
+def _batch_line(line: str, quiet: bool):
+    """A batch's report: errors on stderr, the scenes' summaries on stdout (none with -q)."""
+    if line.startswith("error: "):
+        typer.echo(line, err=True)
+    elif not quiet:
+        typer.echo(line)
 
 
 @app.command("precompute-lut")

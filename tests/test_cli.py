@@ -192,7 +192,8 @@ def test_every_command_takes_quiet(tmp_path):
             "compare": ["compare", str(tmp_path / "a.exr"), str(tmp_path / "a.exr")],
             "precompute-lut": ["precompute-lut", str(mat), "--particles", "2000", *cache],
             "place-samples": ["place-samples", str(path), *cache],
-            "check": ["check", str(path)], "materials": ["materials"], "schema": ["schema"]}
+            "check": ["check", str(path)], "materials": ["materials"], "schema": ["schema"],
+            "batch": ["batch", str(path), "-o", str(tmp_path)]}
     assert set(runs) == {c.name or c.callback.__name__ for c in main_app.registered_commands}
     for name, args in runs.items():
         r = runner.invoke(app, [*args, "-q"])

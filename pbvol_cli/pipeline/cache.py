@@ -99,12 +99,47 @@ def save_npz_atomic(path: Path, **arrays) -> None:
             tmp.unlink()
 
 
+_RECORDERS: list[set] = []  # the open entries_used() sets
+
+
+class entries_used:
+    """A context that collects the paths of the cache entries read or built inside it (cached_entry's): what a
+    render needs, to ship to machines that do not share this cache (pipeline/distributed.py)."""
+
+    def __enter__(self) -> set:
+        self.paths = set()
+        _RECORDERS.append(self.paths)
+        return self.paths
+
+    def __exit__(self, *exc):
+        _RECORDERS.remove(self.paths)
+
+
+def install_entry(path: Path, data: bytes) -> bool:
+    """Put an entry's file, shipped as bytes, at path unless an intact one is there (atomically). Returns whether
+    it was written."""
+    path = Path(path)
+    if _load(path, ())[0] is not None:
+        return False
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.{uuid.uuid4().hex[:8]}.tmp.npz")
+    try:
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return True
+
+
 def cached_entry(path: Path, required: tuple[str, ...], from_arrays, build, force: bool = False):
     """(entry, reused): the entry at path rebuilt from its arrays by from_arrays, or, when it is missing, damaged
     (load_npz's reasons, or from_arrays raises ValueError, KeyError or TypeError) or force is set, build()'s, whose
     .arrays() are then stored atomically. A process that finds another building the entry waits for it and takes
     its result. In a folder that cannot be written the entry is read when intact and otherwise built unstored."""
     path = Path(path)
+    for used in _RECORDERS:
+        used.add(path)
     why = unwritable(path.parent)
     if why:
         _report_unwritable(path.parent, why)

@@ -39,6 +39,7 @@ class RenderOptions:
     quiet: bool = False
     timings: bool = True  # False: no times, peaks or cache reuse in the file, a fixed date: byte-identical reruns
     samples: tuple[int, int] | None = None  # (A, B): samples (passes) A .. B-1 of the scene's sequence (merge)
+    shards: int | None = None  # with dask: pieces of the samples (None: one per worker thread)
 
 
 def scene_hash(scene: C.Scene, built) -> str:
@@ -198,10 +199,11 @@ def render_loaded(scene: C.Scene, scene_path: Path, opts: RenderOptions, referen
 
 
 def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview: Path | None = None,
-                 reference: Path | None = None, exposure: float = 0.0) -> dict:
-    """Render a scene file to an EXR (render_loaded, then the file). Returns the summary dict (also printed by the
-    CLI)."""
-    from pbvol_cli.imageio import read_exr, write_exr, write_preview_png
+                 reference: Path | None = None, exposure: float = 0.0, dask: str | None = None) -> dict:
+    """Render a scene file to an EXR (render_loaded, or with dask, a scheduler's address or local[N], its sample
+    range split across a Dask cluster: pipeline/distributed.py), then the file. Returns the summary dict (also
+    printed by the CLI)."""
+    from pbvol_cli.imageio import read_exr, write_preview_png
 
     if opts.method not in METHODS:
         raise PbvolError(f"unknown method {opts.method!r}; expected one of: {', '.join(METHODS)}")
@@ -216,21 +218,25 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
         ref_img, _ = read_exr(reference)
         if not np.all(np.isfinite(ref_img)):
             raise PbvolError(f"{reference}: the reference has non-finite pixels; expected a finite image")
+    if opts.shards is not None and dask is None:
+        raise PbvolError("--shards: only with --dask")
     scene = C.load_scene(scene_path)
     try:
-        r = render_loaded(scene, scene_path, opts, None if ref_img is None else ref_img.shape[1::-1])
+        if dask is not None:
+            from pbvol_cli.pipeline.distributed import render_distributed
+
+            r = render_distributed([(scene, Path(scene_path), opts)], dask, opts.shards, quiet=opts.quiet)[0]
+            if ref_img is not None and ref_img.shape[1::-1] != r.image.shape[1::-1]:
+                raise PbvolError(f"the reference is {ref_img.shape[1]}x{ref_img.shape[0]}, the render "
+                                 f"{r.image.shape[1]}x{r.image.shape[0]}")
+        else:
+            r = render_loaded(scene, scene_path, opts, None if ref_img is None else ref_img.shape[1::-1])
     except PbvolError as e:
         if ref_img is not None and str(e).startswith("the reference is"):
             raise PbvolError(f"{reference}: {e}") from None
         raise
-    img, layers = r.image, r.layers
-    write_exr(out_path, img.astype(np.float32), r.metadata,
-              layers={k: v.astype(np.float32) for k, v in layers.items()} if layers else None,
-              date_time=None if opts.timings else FIXED_DATE_TIME)
-    if opts.samples is not None and r.sums is not None:
-        save_sample_sums(out_path, r.sums, r.metadata, r.surface_paths)
-    if r.problem:
-        raise RenderFailed(f"{out_path}: written, but {r.problem}: the render failed (please report the scene)")
+    write_render(out_path, r, opts)
+    img = r.image
     if preview is not None:
         write_preview_png(preview, img, exposure)
     summary = {"output": str(out_path), **r.summary}
@@ -241,6 +247,67 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
         summary["mse"] = m["mse"]
         summary["rel_mse"] = m["rel_mse"]
     return summary
+
+
+def write_render(out_path: Path, r: Rendered, opts: RenderOptions):
+    """The EXR of a render (float32, its layers and metadata) and, for a --samples part, its sums beside it; raises
+    RenderFailed, after writing, when the image is implausible."""
+    from pbvol_cli.imageio import write_exr
+
+    write_exr(out_path, r.image.astype(np.float32), r.metadata,
+              layers={k: v.astype(np.float32) for k, v in r.layers.items()} if r.layers else None,
+              date_time=None if opts.timings else FIXED_DATE_TIME)
+    if opts.samples is not None and r.sums is not None:
+        save_sample_sums(out_path, r.sums, r.metadata, r.surface_paths)
+    if r.problem:
+        raise RenderFailed(f"{out_path}: written, but {r.problem}: the render failed (please report the scene)")
+
+
+def render_batch(scene_paths: list[Path], out_dir: Path, opts: RenderOptions, dask: str | None = None,
+                 report=print) -> int:
+    """pbvol batch: every scene rendered to out_dir/<its name>.exr, one after the other, or with dask all their
+    shards on the cluster at once (pipeline/distributed.py). A scene that fails is reported (report(line)) and
+    the others go on. Returns how many failed."""
+    out_dir = Path(out_dir)
+    if not out_dir.is_dir():
+        raise PbvolError(f"{out_dir}: the output folder does not exist")
+    outs = [out_dir / f"{Path(p).stem}.exr" for p in scene_paths]
+    seen = {}
+    for path, out in zip(scene_paths, outs):
+        if out in seen:
+            raise PbvolError(f"{path}: its image {out.name} would overwrite {seen[out]}'s; rename one")
+        seen[out] = path
+    if opts.shards is not None and dask is None:
+        raise PbvolError("--shards: only with --dask")
+    failed = 0
+    if dask is None:
+        for path, out in zip(scene_paths, outs):
+            try:
+                report(format_summary(render_scene(path, out, opts)))
+            except (PbvolError, OSError) as e:
+                failed += 1
+                report(f"error: {' '.join(str(e).split())}")
+        return failed
+    from pbvol_cli.pipeline.distributed import render_distributed
+
+    jobs, targets = [], []
+    for path, out in zip(scene_paths, outs):
+        try:
+            writable_file(out, "the output")
+            jobs.append((C.load_scene(path), Path(path), opts))
+            targets.append(out)
+        except (PbvolError, OSError) as e:
+            failed += 1
+            report(f"error: {' '.join(str(e).split())}")
+    rendered = render_distributed(jobs, dask, opts.shards, quiet=opts.quiet) if jobs else []
+    for out, r in zip(targets, rendered):
+        try:
+            write_render(out, r, opts)
+            report(format_summary({"output": str(out), **r.summary}))
+        except (PbvolError, OSError) as e:
+            failed += 1
+            report(f"error: {' '.join(str(e).split())}")
+    return failed
 
 
 def sums_path(exr: Path) -> Path:
@@ -260,8 +327,24 @@ def save_sample_sums(exr: Path, sums: dict, meta: dict, surface_paths=None):
                     method=np.array(meta["method"]), layers=np.array(list(sums), dtype=str), **arrays)
 
 
-def _load_part(part: Path):
-    """(metadata, {layer: SampleSums}, each pass's surface paths or None, the EXR's layer names) of one part."""
+@dataclass
+class Part:
+    """A render of a range of samples, as merge takes it: its metadata, each layer's sums (in the order the image
+    adds them), each pass's mean camera paths per pixel (the pass-based methods, else None), its EXR's layer
+    names, and what to call it in errors."""
+
+    meta: dict
+    sums: dict
+    surface_paths: object
+    layer_names: list
+    name: str
+
+    @classmethod
+    def of(cls, r: Rendered, name: str) -> "Part":
+        return cls(r.metadata, r.sums, r.surface_paths, list(r.layers), name)
+
+
+def _load_part(part: Path) -> Part:
     from pbvol_cli.imageio import read_exr, read_layers
     from pbvol_cli.pipeline.cache import load_npz
     from pbvol_cli.render.sample_sums import SampleSums
@@ -275,19 +358,53 @@ def _load_part(part: Path):
         raise PbvolError(f"{part}: its sums belong to another render (scene hash, method)")
     sums = {str(n): SampleSums.from_arrays({k: data[f"{n}.{k}"] for k in ("lo", "hi", "sums")})
             for n in data["layers"]}
-    return meta, sums, data.get("surface_paths"), list(read_layers(part))
+    return Part(meta, sums, data.get("surface_paths"), list(read_layers(part)), str(part))
 
 
 MERGE_MATCH = ("method", "scene_hash", "seed", "orders", "max_depth", "surface_paths_setting")  # what parts share
 
 
-def merge_parts(parts: list[Path], out_path: Path) -> dict:
-    """pbvol merge: the parts' exact sums (render --samples) pooled into one image and its layers, the same bit for
-    bit as one render of their union (for pbl with auto surface paths, as the parts' passes were rendered:
-    first_path_indices). Refuses parts of other scenes, seeds or methods, overlapping ranges or gaps. Returns the
-    merged metadata."""
-    from pbvol_cli.imageio import read_exr, write_exr
+def merge_loaded(parts: list[Part], shape) -> Rendered:
+    """The parts' sums pooled: the image and layers (shape (H, W, 3)), the same bit for bit as one render of their
+    union (for pbl with auto surface paths, as the parts' passes were rendered: first_path_indices), with the
+    merged metadata and sums (summary empty). Refuses parts of other scenes, seeds or methods, overlapping ranges
+    or gaps."""
     from pbvol_cli.render.sample_sums import SampleSums, layer_means
+
+    if not parts:
+        raise PbvolError("merge: no parts given")
+    first = parts[0]
+    for part in parts[1:]:
+        for key in MERGE_MATCH:
+            if part.meta.get(key) != first.meta.get(key):
+                raise PbvolError(f"{part.name}: {key} {part.meta.get(key)} differs from {first.name}'s "
+                                 f"{first.meta.get(key)}")
+        if list(part.sums) != list(first.sums):
+            raise PbvolError(f"{part.name}: layers {', '.join(part.sums)} differ from {first.name}'s "
+                             f"{', '.join(first.sums)}")
+    try:
+        merged = {name: SampleSums.merged([p.sums[name] for p in parts]) for name in first.sums}
+    except ValueError as e:
+        raise PbvolError(f"merge: the parts' sample ranges overlap or leave a gap ({e})") from None
+    lo, hi = next(iter(merged.values())).range
+    means = layer_means(merged, hi - lo, shape)
+    image = sum(means.values())
+    layers = {name: means.get(name, np.zeros(shape)) for name in first.layer_names}
+    meta = {k: v for k, v in first.meta.items() if not k.startswith("stage_") and k not in ("time_s", "build_s")}
+    meta.update({"spp": hi - lo, "samples": f"{lo}:{hi}", "merged_parts": len(parts)})
+    ks = None
+    if first.surface_paths is not None:  # the passes' camera paths, in pass order
+        ordered = sorted(parts, key=lambda p: next(iter(p.sums.values())).range[0])
+        ks = [float(k) for p in ordered for k in p.surface_paths]
+        meta["surface_paths"] = float(np.mean(ks))
+        meta["surface_paths_per_pass"] = ",".join(f"{k:.4g}" for k in ks)
+    return Rendered(image, layers, meta, {}, None, merged, ks)
+
+
+def merge_parts(parts: list[Path], out_path: Path) -> dict:
+    """pbvol merge: the parts' exact sums (render --samples) pooled into one image and its layers (merge_loaded),
+    written with their sums. Returns the merged metadata."""
+    from pbvol_cli.imageio import read_exr, write_exr
 
     out_path = Path(out_path)
     if out_path.suffix.lower() != ".exr":
@@ -295,49 +412,63 @@ def merge_parts(parts: list[Path], out_path: Path) -> dict:
     writable_file(out_path, "the output")
     if not parts:
         raise PbvolError("merge: no parts given")
-    loaded = [_load_part(part) for part in parts]
-    meta0, sums0 = loaded[0][0], loaded[0][1]
-    for part, (meta, sums, _, _) in zip(parts[1:], loaded[1:]):
-        for key in MERGE_MATCH:
-            if meta.get(key) != meta0.get(key):
-                raise PbvolError(f"{part}: {key} {meta.get(key)} differs from {parts[0]}'s {meta0.get(key)}")
-        if list(sums) != list(sums0):
-            raise PbvolError(f"{part}: layers {', '.join(sums)} differ from {parts[0]}'s {', '.join(sums0)}")
-    try:
-        merged = {name: SampleSums.merged([p[1][name] for p in loaded]) for name in sums0}
-    except ValueError as e:
-        raise PbvolError(f"merge: the parts' sample ranges overlap or leave a gap ({e})") from None
-    lo, hi = next(iter(merged.values())).range
-    H, W = read_exr(parts[0])[0].shape[:2]
-    means = layer_means(merged, hi - lo, (H, W, 3))
-    image = sum(means.values())
-    layers = {name: means.get(name, np.zeros((H, W, 3))).astype(np.float32) for name in loaded[0][3]}
-    meta = {k: v for k, v in meta0.items() if not k.startswith("stage_") and k not in ("time_s", "build_s")}
-    meta.update({"spp": hi - lo, "samples": f"{lo}:{hi}", "merged_parts": len(parts)})
-    ks = None
-    if loaded[0][2] is not None:  # the passes' camera paths, in pass order (the parts sorted by their ranges)
-        order = sorted(range(len(parts)), key=lambda i: next(iter(loaded[i][1].values())).range[0])
-        ks = np.concatenate([loaded[i][2] for i in order])
-        meta["surface_paths"] = float(np.mean(ks))
-        meta["surface_paths_per_pass"] = ",".join(f"{k:.4g}" for k in ks)
-    write_exr(out_path, image.astype(np.float32), meta, layers=layers or None, date_time=FIXED_DATE_TIME)
-    save_sample_sums(out_path, merged, meta, ks)
-    return meta
+    r = merge_loaded([_load_part(part) for part in parts], read_exr(parts[0])[0].shape[:2] + (3,))
+    write_exr(out_path, r.image.astype(np.float32), r.metadata,
+              layers={k: v.astype(np.float32) for k, v in r.layers.items()} or None, date_time=FIXED_DATE_TIME)
+    save_sample_sums(out_path, r.sums, r.metadata, r.surface_paths)
+    return r.metadata
 
 
 def _render_pbl(scene, built, spp, seed, threads, time_limit, opts, scene_path, first_pass=0):
     """Light samples and tables from the cache (built when missing), then the passes (pointbased/passes.py). The
     dipole (opts.method) takes the point-based method's single scattering, no tables, and its diffusion term from
     the irradiance samples (dipole/)."""
-    from pbvol_cli.pipeline.cache import cache_dir
-    from pbvol_cli.pipeline.lut import get_table, table_settings
-    from pbvol_cli.pipeline.samples import bounced_cache, get_light_samples
-    from pbvol_cli.physics.phase import KINDS
-    from pbvol_cli.pointbased.camera_pass import COMPONENTS
-    from pbvol_cli.pointbased.passes import TABLE_COMPONENTS, render_passes
+    from pbvol_cli.pipeline.samples import bounced_cache
+    from pbvol_cli.pointbased.passes import render_passes
 
     if opts.method in ("raymarch", "vpl"):
         return _render_raymarch(scene, built, spp, seed, threads, time_limit, opts, first_pass)
+    side = light_side(scene, built, seed, threads, opts, scene_path)
+    pbl, res, stages = side.pbl, side.samples, side.stages
+    W, H = built.resolution
+    prog, update = progress_bar(opts.quiet, f"{opts.method} {W}x{H} {spp} spp", "pixel samples")
+    with prog:
+        img, layers, stats, timings = render_passes(
+            built, res.samples if res else None, side.tables, pbl, seed, spp, threads, update, time_limit,
+            bounced_cache(side.cache, res.path, pbl, side.table_names) if res else None, side.entry, first_pass)
+    if opts.method == "dipole":
+        layers = {k: layers.get(k, np.zeros_like(img)) for k in DIPOLE_LAYERS}
+    stages["render_s"] = stats["time_s"]
+    stages["pass_samples_s"] = timings["pass_samples_s"]
+    stages["bounced_s"] = timings["bounced_s"]
+    stages["peak_memory_mb"] = peak_memory_mb()
+    return img, layers, stats, stages
+
+
+@dataclass
+class LightSide:
+    """What the point-based passes and the dipole read from the cache: pass 0's light samples (SamplesResult, None
+    without a medium), the tables ({medium: [MSTable or None] x 3}) and their entries' names, the dipole's
+    diffusion term (entry), the settings with the method's components, the cache folder and the stages' times."""
+
+    pbl: object
+    samples: object
+    tables: dict
+    table_names: dict
+    entry: object
+    cache: Path
+    stages: dict
+
+
+def light_side(scene, built, seed, threads, opts, scene_path) -> LightSide:
+    """The light side of a pbl or dipole render from the cache (built and stored when missing)."""
+    from pbvol_cli.pipeline.cache import cache_dir
+    from pbvol_cli.pipeline.lut import get_table, table_settings
+    from pbvol_cli.pipeline.samples import get_light_samples
+    from pbvol_cli.physics.phase import KINDS
+    from pbvol_cli.pointbased.camera_pass import COMPONENTS
+    from pbvol_cli.pointbased.passes import TABLE_COMPONENTS
+
     homogeneous_media_only(built, opts.method, scene_path)
     pbl = scene.render.pbl
     dipole = opts.method == "dipole"
@@ -381,19 +512,7 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts, scene_path, 
         table_names[m] = [r.path.name if r else None for r in found]
     stages["tables_s"] = time.perf_counter() - t0
     stages["tables_peak_mb"] = peak_memory_mb()
-    W, H = built.resolution
-    prog, update = progress_bar(opts.quiet, f"{opts.method} {W}x{H} {spp} spp", "pixel samples")
-    with prog:
-        img, layers, stats, timings = render_passes(
-            built, res.samples if res else None, tables, pbl, seed, spp, threads, update, time_limit,
-            bounced_cache(cache, res.path, pbl, table_names) if res else None, entry, first_pass)
-    if dipole:
-        layers = {k: layers.get(k, np.zeros_like(img)) for k in DIPOLE_LAYERS}
-    stages["render_s"] = stats["time_s"]
-    stages["pass_samples_s"] = timings["pass_samples_s"]
-    stages["bounced_s"] = timings["bounced_s"]
-    stages["peak_memory_mb"] = peak_memory_mb()
-    return img, layers, stats, stages
+    return LightSide(pbl, res, tables, table_names, entry, cache, stages)
 
 
 def _render_raymarch(scene, built, spp, seed, threads, time_limit, opts, first_pass=0):

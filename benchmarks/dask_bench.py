@@ -1,0 +1,89 @@
+#!/usr/bin/env python3
+"""Distributed rendering's efficiency: one scene rendered by one process and on local Dask clusters of 1 and 2
+worker processes, timed by the command line, with the images checked equal bit for bit.
+
+    .venv/bin/python benchmarks/dask_bench.py [--scenes oil_sphere:volpath:256,wax_sphere:pbl:4]
+                                              [--resolution 128] [--workers 1,2]
+
+Efficiency = one process's time / (the cluster's time x the cores it holds / the cores one process used); every
+run uses all of the machine's cores (one process: threads = cores; local[N]: N processes of cores / N threads).
+The cluster's time includes starting the workers and their loading the compiled kernels, which a long-lived
+cluster pays once: the table gives both (the `startup` column: a local[N] render of one sample). Results in
+bench-out/dask_bench.md and .json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from pbl_bench import output_args  # noqa: E402
+
+
+def pbvol(*args) -> float:
+    """Seconds a `pbvol render` takes, from the command line."""
+    t = time.perf_counter()
+    r = subprocess.run([str(ROOT / ".venv" / "bin" / "pbvol"), "render", *map(str, args), "-q"],
+                       capture_output=True, text=True, cwd=ROOT)
+    if r.returncode != 0:
+        raise SystemExit(f"pbvol render {' '.join(map(str, args))} failed:\n{r.stderr}")
+    return time.perf_counter() - t
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scenes", default="oil_sphere:volpath:256,wax_sphere:pbl:4",
+                    help="comma list of config:method:spp")
+    ap.add_argument("--resolution", type=int, default=128)
+    ap.add_argument("--workers", default="1,2")
+    output_args(ap)
+    args = ap.parse_args()
+    import numpy as np
+
+    from pbvol_cli.imageio import read_exr
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    res = f"{args.resolution}x{args.resolution}"
+    rows = []
+    for item in args.scenes.split(","):
+        name, method, spp = item.split(":")
+        scene = ROOT / "configs" / f"{name}.toml"
+        common = [scene, "--method", method, "--resolution", res, "--cache-dir", args.cache]
+        pbvol(*common, "--spp", 1, "-o", args.out / "dask_warm.exr")  # compiled kernels, cached samples
+        one = pbvol(*common, "--spp", spp, "--threads", args.threads, "-o", args.out / f"dask_{name}_one.exr")
+        row = {"scene": name, "method": method, "spp": int(spp), "one_process_s": one}
+        for n in map(int, args.workers.split(",")):
+            startup = pbvol(*common, "--spp", 1, "--dask", f"local[{n}]", "-o", args.out / "dask_warm.exr")
+            out = args.out / f"dask_{name}_{n}.exr"
+            t = pbvol(*common, "--spp", spp, "--dask", f"local[{n}]", "-o", out)
+            same = bool(np.array_equal(read_exr(out)[0], read_exr(args.out / f"dask_{name}_one.exr")[0]))
+            row[f"local{n}"] = {"s": t, "startup_s": startup, "efficiency": one / t, "same_image": same,
+                                "efficiency_after_startup": one / max(t - startup, 1e-9)}
+            print(name, method, f"local[{n}]", f"{t:.1f} s against {one:.1f} s; startup {startup:.1f} s;",
+                  "same image" if same else "IMAGES DIFFER", flush=True)
+        rows.append(row)
+    (args.out / "dask_bench.json").write_text(json.dumps(rows, indent=1))
+    lines = ["| scene | method | spp | one process s | " + " | ".join(
+        f"local[{n}] s (startup s) | efficiency (after startup)" for n in args.workers.split(",")) + " | images |",
+        "|---|---|---|---|" + "---|---|" * len(args.workers.split(",")) + "---|"]
+    for r in rows:
+        cells = []
+        for n in args.workers.split(","):
+            d = r[f"local{n}"]
+            cells += [f"{d['s']:.1f} ({d['startup_s']:.1f})",
+                      f"{d['efficiency']:.2f} ({d['efficiency_after_startup']:.2f})"]
+        same = all(r[f"local{n}"]["same_image"] for n in args.workers.split(","))
+        lines.append(f"| {r['scene']} | {r['method']} | {r['spp']} | {r['one_process_s']:.1f} | "
+                     + " | ".join(cells) + f" | {'identical' if same else 'DIFFER'} |")
+    (args.out / "dask_bench.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
