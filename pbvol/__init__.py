@@ -73,11 +73,13 @@ def load_scene(source, base_dir=None) -> Scene:
 def render(scene, method: str = "volpath", spp: int | None = None, seed: int | None = None,
            resolution: tuple[int, int] | None = None, threads: int | None = None, time_limit: float | None = None,
            orders: str | None = None, components: str | None = None, max_depth: int | None = None,
-           samples: tuple[int, int] | None = None, cache_dir=None, progress: bool = False) -> Result:
+           samples: tuple[int, int] | None = None, cache_dir=None, progress: bool = False, dask=None,
+           shards: int | None = None) -> Result:
     """Render a Scene (or a path or dict, loaded by load_scene). The arguments are the command line's options
     (None: the scene's setting; samples=(A, B): samples (passes) A .. B-1); progress: show the progress bar on
-    stderr. Tables and light samples come from the
-    cache (cache_dir, else $PBVOL_CACHE_DIR, else ~/.cache/pbvol)."""
+    stderr; dask: render on a Dask cluster (local[N], a scheduler's address or a distributed.Client; shards:
+    pieces of the samples), the same image. Tables and light samples come from the cache (cache_dir, else
+    $PBVOL_CACHE_DIR, else ~/.cache/pbvol)."""
     from pbvol_cli.pipeline.render import RenderOptions, render_loaded
 
     if not isinstance(scene, Scene):
@@ -87,5 +89,10 @@ def render(scene, method: str = "volpath", spp: int | None = None, seed: int | N
                          max_depth=max_depth, components=components,
                          samples=tuple(samples) if samples is not None else None,
                          cache_dir=Path(cache_dir) if cache_dir is not None else None, quiet=not progress)
-    r = render_loaded(scene.config, scene.path, opts)
+    if dask is not None:
+        from pbvol_cli.pipeline.distributed import render_distributed
+
+        r = render_distributed([(scene.config, scene.path, opts)], dask, shards, quiet=not progress)[0]
+    else:
+        r = render_loaded(scene.config, scene.path, opts)
     return Result(r.image, dict(r.layers), r.metadata, r.summary, r.problem)

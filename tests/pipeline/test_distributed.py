@@ -129,3 +129,11 @@ def test_the_command_line_refuses_what_dask_cannot_do(tmp_path):
         r = runner.invoke(app, ["render", str(path), "-o", out, "-q", *args])
         assert r.exit_code == 1 and needle in r.output and "Traceback" not in r.output, (args, r.output)
     assert not Path(out).exists()
+
+
+def test_the_api_renders_on_dask(tmp_path, client):
+    import pbvol
+
+    scene = pbvol.load_scene(dict(SCENE, render={"spp": 5, "seed": 2}), base_dir=tmp_path)
+    one = pbvol.render(scene, threads=1)
+    assert np.array_equal(pbvol.render(scene, dask=client, shards=2).image, one.image)
