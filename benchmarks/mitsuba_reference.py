@@ -7,33 +7,31 @@ Run it with the *Mitsuba* interpreter (a separate venv, not pbvol's), e.g.::
         --scene wax_sphere --spp 64 --threads 2 --out /tmp/wax.exr --json
 
 This script deliberately does not import pbvol.  The scene is either a built-in
-(``--scene wax_sphere``) or a small JSON description given with
-``--scene-json`` (inline JSON text, or a path to a .json file).  ``--dump-scene``
-prints the resolved description, which is the schema below::
+(``--scene wax_sphere``) or the JSON that ``pbvol export-mitsuba SCENE -o
+scene.json`` writes, given with ``--scene-json`` (a path to the .json file, or
+inline JSON text).  That JSON is the dictionary ``mi.load_dict`` takes, with two
+conventions JSON needs (``load_dict_form`` applies them):
 
-    {
-      "camera": {"origin": [x,y,z], "target": [x,y,z], "up": [x,y,z],
-                 "fov": deg, "fov_axis": "y", "resolution": [W, H]},
-      "objects": [{"shape": "sphere", "center": [x,y,z], "radius": r,
-                   "bsdf": {"type": "dielectric", "int_ior": n, "ext_ior": n}
-                           | {"type": "null"},
-                   "interior": {"type": "homogeneous", "albedo": [r,g,b],
-                                "sigma_t": [r,g,b], "scale": s,
-                                "phase": {"type": "hg", "g": g}
-                                         | {"type": "isotropic"}}}],
-      "lights": [{"type": "sphere", "center": [x,y,z], "radius": r,
-                  "radiance": [r,g,b]}],
-      "integrator": {"type": "volpath", "max_depth": -1, "rr_depth": 8}
-    }
+  * a transform is ``{"type": "transform", "matrix": [[4 rows of 4]]}``
+    (row-major; becomes ``mi.ScalarTransform4f``);
+  * a ``"filename"`` (meshes, volume grids) is relative to the JSON file's
+    folder (relative to the current folder for inline text).
+
+``--dump-scene`` prints the resolved JSON (overrides applied) and exits.
 
 Timing: the scene is first rendered once at 1 spp (JIT compilation warm-up,
 not timed); the main render is then timed up to and including conversion of
 the result to a NumPy array, so all kernel work has completed.
 
-Mitsuba conventions worth knowing when comparing with pbvol:
+Mitsuba conventions worth knowing when comparing with pbvol (the export maps
+them: pbvol_cli/pipeline/export_mitsuba.py):
+  * ``max_depth`` counts path segments (1: emitters seen directly), pbvol's
+    the interactions: the export writes pbvol's + 1.  ``--max-depth`` here
+    takes Mitsuba's convention.
   * ``rr_depth``: Russian roulette runs at the top of each path-loop iteration
     when ``depth > rr_depth`` (strictly), where depth counts scattering
-    vertices (medium scatters and non-null surface interactions).  The
+    vertices (medium scatters and non-null surface interactions); pbvol's
+    starts once depth >= its rr_depth, so the export writes pbvol's - 1.  The
     survival probability is ``min(max(throughput) * eta^2, 0.95)``.
   * volpath/volpathmis cannot do next-event estimation through a smooth
     ``dielectric`` boundary (its null transmission is 0), so inside the wax
@@ -66,177 +64,124 @@ if "DRJIT_LIBLLVM_PATH" not in os.environ:
             os.environ["DRJIT_LIBLLVM_PATH"] = _cand
             break
 
-WAX_SPHERE = {
-    "camera": {
-        "origin": [0.0, 0.0, 20.0],
-        "target": [0.0, 0.0, 0.0],
-        "up": [0.0, 1.0, 0.0],
-        "fov": 30.0,
-        "fov_axis": "y",
-        "resolution": [256, 256],
-    },
-    "objects": [
-        {
-            "shape": "sphere",
+
+def _wax_sphere():
+    """configs/wax_sphere.toml as `pbvol export-mitsuba` writes it: a sphere of the paper's wax (materials/wax.toml)
+    of radius 5 behind a dielectric of index 1.44, a sphere light of radius 0.5 and radiance 400, 256 x 256."""
+    albedo = [0.9803, 0.9615, 0.7500]
+    sigma_t = [1.0 / 0.6536, 1.0 / 0.6250, 1.0 / 0.5882]
+    top = max(sigma_t)
+    return {
+        "type": "scene",
+        "integrator": {"type": "volpath", "max_depth": 100001, "rr_depth": 7, "hide_emitters": False},
+        "sensor": {
+            "type": "perspective",
+            "fov": 30.0,
+            "fov_axis": "y",
+            "near_clip": 0.001,
+            "far_clip": 1000.0,
+            # look_at(origin=[0, 0, 20], target=[0, 0, 0], up=[0, 1, 0])
+            "to_world": {"type": "transform", "matrix": [[-1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0],
+                                                         [0.0, 0.0, -1.0, 20.0], [0.0, 0.0, 0.0, 1.0]]},
+            "sampler": {"type": "independent", "sample_count": 16, "seed": 1},
+            "film": {"type": "hdrfilm", "width": 256, "height": 256, "pixel_format": "rgb",
+                     "component_format": "float32", "rfilter": {"type": "box"}},
+        },
+        "medium_0": {
+            "type": "homogeneous",
+            "albedo": {"type": "rgb", "value": albedo},
+            "sigma_t": {"type": "rgb", "value": [s / top for s in sigma_t]},
+            "scale": top,
+            "phase": {"type": "hg", "g": 0.8},
+        },
+        "shape_0": {
+            "type": "sphere",
             "center": [0.0, 0.0, 0.0],
             "radius": 5.0,
             "bsdf": {"type": "dielectric", "int_ior": 1.44, "ext_ior": 1.0},
-            "interior": {
-                "type": "homogeneous",
-                "albedo": [0.9803, 0.9615, 0.7500],
-                "sigma_t": [1.0 / 0.6536, 1.0 / 0.6250, 1.0 / 0.5882],
-                "scale": 1.0,
-                "phase": {"type": "hg", "g": 0.8},
-            },
-        }
-    ],
-    "lights": [
-        {
+            "interior": {"type": "ref", "id": "medium_0"},
+        },
+        "light_0": {
             "type": "sphere",
             "center": [10.0, 10.0, 10.0],
             "radius": 0.5,
-            "radiance": [400.0, 400.0, 400.0],
-        }
-    ],
-    "integrator": {"type": "volpath", "max_depth": -1, "rr_depth": 8},
-}
-
-BUILTIN_SCENES = {"wax_sphere": WAX_SPHERE}
-
-
-def _rgb(v, unbounded=False):
-    if isinstance(v, (int, float)):
-        v = [v, v, v]
-    if unbounded:
-        # The 'rgb' shorthand is a reflectance and rejects components > 1;
-        # the underlying 'srgb' plugin accepts them with unbounded=True.
-        return {"type": "srgb", "color": [float(c) for c in v], "unbounded": True}
-    return {"type": "rgb", "value": [float(c) for c in v]}
-
-
-def _phase(desc):
-    kind = (desc or {"type": "isotropic"}).get("type", "isotropic")
-    if kind == "hg":
-        return {"type": "hg", "g": float(desc.get("g", 0.0))}
-    if kind == "isotropic":
-        return {"type": "isotropic"}
-    raise ValueError(f"unsupported phase function {kind!r}")
-
-
-def _medium(desc):
-    if desc.get("type", "homogeneous") != "homogeneous":
-        raise ValueError(f"unsupported medium {desc.get('type')!r}")
-    return {
-        "type": "homogeneous",
-        "albedo": _rgb(desc["albedo"]),
-        "sigma_t": _rgb(desc["sigma_t"], unbounded=True),
-        "scale": float(desc.get("scale", 1.0)),
-        "phase": _phase(desc.get("phase")),
-    }
-
-
-def _bsdf(desc):
-    kind = desc.get("type", "null")
-    if kind == "dielectric":
-        return {
-            "type": "dielectric",
-            "int_ior": float(desc.get("int_ior", 1.5046)),
-            "ext_ior": float(desc.get("ext_ior", 1.0)),
-        }
-    if kind == "null":
-        return {"type": "null"}
-    if kind == "diffuse":
-        return {"type": "diffuse", "reflectance": _rgb(desc.get("reflectance", 0.5))}
-    raise ValueError(f"unsupported bsdf {kind!r}")
-
-
-def to_mitsuba_dict(mi, desc, spp, integrator_type=None):
-    """Translate the small JSON description into a Mitsuba scene dict."""
-    cam = desc["camera"]
-    w, h = cam["resolution"]
-    integ = dict(desc.get("integrator", {}))
-    itype = integrator_type or integ.get("type", "volpath")
-    scene = {
-        "type": "scene",
-        "integrator": {
-            "type": itype,
-            "max_depth": int(integ.get("max_depth", -1)),
-            "rr_depth": int(integ.get("rr_depth", 5)),
-        },
-        "sensor": {
-            "type": "perspective",
-            "fov": float(cam["fov"]),
-            "fov_axis": cam.get("fov_axis", "y"),
-            "to_world": mi.ScalarTransform4f().look_at(
-                origin=cam["origin"], target=cam["target"], up=cam["up"]
-            ),
-            "sampler": {"type": "independent", "sample_count": int(spp)},
-            "film": {
-                "type": "hdrfilm",
-                "width": int(w),
-                "height": int(h),
-                "pixel_format": "rgb",
-                "component_format": "float32",
-                "rfilter": {"type": "box"},
-            },
+            # a black BSDF: the light sphere only emits
+            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}},
+            "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [400.0, 400.0, 400.0]}},
         },
     }
-    for i, obj in enumerate(desc.get("objects", [])):
-        if obj.get("shape") != "sphere":
-            raise ValueError(f"unsupported shape {obj.get('shape')!r}")
-        shape = {
-            "type": "sphere",
-            "center": [float(c) for c in obj["center"]],
-            "radius": float(obj["radius"]),
-            "bsdf": _bsdf(obj.get("bsdf", {"type": "null"})),
-        }
-        if obj.get("interior"):
-            shape["interior"] = _medium(obj["interior"])
-        if obj.get("exterior"):
-            shape["exterior"] = _medium(obj["exterior"])
-        scene[f"object_{i}"] = shape
-    for i, light in enumerate(desc.get("lights", [])):
-        if light.get("type") != "sphere":
-            raise ValueError(f"unsupported light {light.get('type')!r}")
-        scene[f"light_{i}"] = {
-            "type": "sphere",
-            "center": [float(c) for c in light["center"]],
-            "radius": float(light["radius"]),
-            # A black BSDF: the light sphere should only emit.
-            "bsdf": {"type": "diffuse", "reflectance": _rgb(0.0)},
-            "emitter": {"type": "area", "radiance": _rgb(light["radiance"])},
-        }
-    return scene
+
+
+BUILTIN_SCENES = {"wax_sphere": _wax_sphere}
+SENSORS = ("perspective", "thinlens", "orthographic")
+INTEGRATORS = ("volpath", "volpathmis", "path", "prbvolpath")
+
+
+def load_dict_form(mi, desc, base_dir=None):
+    """The dictionary for ``mi.load_dict`` from the export's JSON form: every
+    {"type": "transform", "matrix": M} becomes ``mi.ScalarTransform4f(M)``, and
+    every relative "filename" is joined to base_dir (the JSON file's folder).
+    Pure Python but for ``mi.ScalarTransform4f``: pass any stand-in for mi."""
+
+    def walk(value, key=None):
+        if isinstance(value, dict):
+            if value.get("type") == "transform":
+                return mi.ScalarTransform4f(value["matrix"])
+            return {k: walk(v, k) for k, v in value.items()}
+        if isinstance(value, list):
+            return [walk(v) for v in value]
+        if key == "filename" and isinstance(value, str) and base_dir and not os.path.isabs(value):
+            return os.path.join(base_dir, value)
+        return value
+
+    return walk(desc)
+
+
+def find_object(desc, types):
+    """The top-level entry of the scene dict whose type is one of types (the sensor, the integrator)."""
+    for key, value in desc.items():
+        if isinstance(value, dict) and value.get("type") in types:
+            return value
+    raise ValueError(f"the scene has no {' or '.join(types)} entry")
 
 
 def load_description(args):
+    """(scene dict in the JSON form, the folder its filenames are relative to), the command line's overrides
+    applied."""
+    base_dir = None
     if args.scene_json:
         text = args.scene_json
         if os.path.exists(text):
+            base_dir = os.path.dirname(os.path.abspath(text))
             with open(text) as f:
                 text = f.read()
         desc = json.loads(text)
     else:
-        desc = copy.deepcopy(BUILTIN_SCENES[args.scene])
+        desc = copy.deepcopy(BUILTIN_SCENES[args.scene]())
+    sensor = find_object(desc, SENSORS)
     if args.resolution:
-        desc["camera"]["resolution"] = list(args.resolution)
+        sensor["film"]["width"], sensor["film"]["height"] = args.resolution
+    sensor.setdefault("sampler", {"type": "independent"})["sample_count"] = args.spp
+    integ = find_object(desc, INTEGRATORS)
     if args.max_depth is not None:
-        desc.setdefault("integrator", {})["max_depth"] = args.max_depth
+        integ["max_depth"] = args.max_depth
     if args.rr_depth is not None:
-        desc.setdefault("integrator", {})["rr_depth"] = args.rr_depth
+        integ["rr_depth"] = args.rr_depth
     if args.integrator:
-        desc.setdefault("integrator", {})["type"] = args.integrator
-    return desc
+        integ["type"] = args.integrator
+    return desc, base_dir
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scene", default="wax_sphere", choices=sorted(BUILTIN_SCENES))
-    p.add_argument("--scene-json", help="JSON description (text or file path); overrides --scene")
+    p.add_argument("--scene-json", help="a scene as `pbvol export-mitsuba` writes it (a .json path, or JSON text); "
+                   "overrides --scene")
     p.add_argument("--spp", type=int, default=64)
     p.add_argument("--resolution", type=int, nargs=2, metavar=("W", "H"))
     p.add_argument("--integrator", choices=["volpath", "volpathmis"])
-    p.add_argument("--max-depth", type=int, help="override max_depth (-1 = unbounded)")
+    p.add_argument("--max-depth", type=int, help="override max_depth, Mitsuba's convention (path segments; "
+                   "-1 = unbounded)")
     p.add_argument("--rr-depth", type=int, help="override rr_depth")
     p.add_argument("--threads", type=int, help="Dr.Jit worker threads (default: all cores)")
     p.add_argument("--variant", default="llvm_ad_rgb")
@@ -248,7 +193,7 @@ def main(argv=None):
                    help="print the resolved JSON description and exit")
     args = p.parse_args(argv)
 
-    desc = load_description(args)
+    desc, base_dir = load_description(args)
     if args.dump_scene:
         print(json.dumps(desc, indent=2))
         return 0
@@ -263,9 +208,10 @@ def main(argv=None):
     if args.threads:
         dr.set_thread_count(args.threads)
 
-    itype = desc.get("integrator", {}).get("type", "volpath")
-    w, h = desc["camera"]["resolution"]
-    scene = mi.load_dict(to_mitsuba_dict(mi, desc, args.spp, itype))
+    itype = find_object(desc, INTEGRATORS)["type"]
+    film = find_object(desc, SENSORS)["film"]
+    w, h = int(film["width"]), int(film["height"])
+    scene = mi.load_dict(load_dict_form(mi, desc, base_dir))
 
     warmup_s = None
     if not args.no_warmup:

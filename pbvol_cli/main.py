@@ -143,8 +143,13 @@ def render(
                              resolution=_parse_resolution(resolution), orders=orders, max_depth=max_depth,
                              components=components, cache_dir=cache_dir, quiet=quiet, timings=timings,
                              samples=_parse_samples(samples), shards=shards)
+        renderer = None
+        if dask is not None:
+            from pbvol_cli.pipeline.distributed import on_dask
+
+            renderer = on_dask(dask, shards, quiet)
         summary = render_scene(scene, output, opts, preview=preview, reference=reference, exposure=exposure,
-                               dask=dask)
+                               renderer=renderer)
     except RenderFailed as e:
         _fail(e, EXIT_RENDER_FAILED)
     except (PbvolError, OSError) as e:
@@ -201,7 +206,8 @@ def batch(
 ):
     """Render many scenes, one after the other or, with --dask, all on a cluster at once; a scene that fails is
     reported and the others go on (exit status 3 when any failed)."""
-    from pbvol_cli.pipeline.render import RenderOptions, render_batch
+    from pbvol_cli.pipeline.distributed import render_batch
+    from pbvol_cli.pipeline.render import RenderOptions
 
     try:
         opts = RenderOptions(method=method, spp=spp, seed=seed, threads=threads,
@@ -221,6 +227,30 @@ def _batch_line(line: str, quiet: bool):
         typer.echo(line, err=True)
     elif not quiet:
         typer.echo(line)
+
+
+@app.command("export-mitsuba")
+def export_mitsuba_cmd(
+    scene: SceneArg,
+    output: Annotated[Path, typer.Option("-o", "--output", help="Mitsuba 3 scene: .json (mi.load_dict form) or "
+                                         ".xml; meshes and grids are written beside it")],
+    spp: Annotated[Optional[int], typer.Option(min=1, max=MAX_SPP, help="samples per pixel (overrides the "
+                                               "scene)")] = None,
+    resolution: Annotated[Optional[str], typer.Option(help="WIDTHxHEIGHT (overrides the scene)")] = None,
+    quiet: QuietOpt = False,
+):
+    """Write SCENE as a Mitsuba 3 scene (volpath) for every feature both share, to cross-check pbvol in Mitsuba;
+    what Mitsuba lacks is refused (emissive media) or approximated with a warning (README: export-mitsuba)."""
+    from pbvol_cli.pipeline.export_mitsuba import export_mitsuba
+
+    try:
+        warnings = export_mitsuba(scene, output, spp=spp, resolution=_parse_resolution(resolution))
+    except (PbvolError, OSError) as e:
+        _fail(e)
+    for w in warnings:
+        typer.echo(f"warning: {w}", err=True)
+    if not quiet:
+        typer.echo(f"wrote {output}")
 
 
 @app.command("precompute-lut")

@@ -193,7 +193,8 @@ def test_every_command_takes_quiet(tmp_path):
             "precompute-lut": ["precompute-lut", str(mat), "--particles", "2000", *cache],
             "place-samples": ["place-samples", str(path), *cache],
             "check": ["check", str(path)], "materials": ["materials"], "schema": ["schema"],
-            "batch": ["batch", str(path), "-o", str(tmp_path)]}
+            "batch": ["batch", str(path), "-o", str(tmp_path)],
+            "export-mitsuba": ["export-mitsuba", str(path), "-o", str(tmp_path / "scene.xml")]}
     assert set(runs) == {c.name or c.callback.__name__ for c in main_app.registered_commands}
     for name, args in runs.items():
         r = runner.invoke(app, [*args, "-q"])

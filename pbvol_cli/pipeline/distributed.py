@@ -20,8 +20,11 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from pbvol_cli import config as C
 from pbvol_cli.errors import PbvolError
 from pbvol_cli.pipeline.progress import peak_memory_mb, progress_bar
+from pbvol_cli.pipeline.render import (Part, format_summary, implausible_pixels, light_side, merge_loaded,
+                                       render_loaded, render_scene, writable_file, write_render)
 
 LOCAL = re.compile(r"local(?:\[(\d+)\])?$")  # local[N]: a LocalCluster of N single-threaded worker processes
 
@@ -60,7 +63,6 @@ def cache_entries(scene, scene_path: Path, opts, read: bool = True) -> dict:
     from pbvol_cli.geometry.scene_build import build_scene
     from pbvol_cli.pipeline.cache import cache_dir, entries_used
     from pbvol_cli.pipeline.progress import set_threads
-    from pbvol_cli.pipeline.render import light_side
 
     if opts.method not in ("pbl", "dipole"):
         return {}
@@ -78,7 +80,6 @@ def render_shard(scene, scene_path: Path, opts, entries: dict, cache):
     """A worker's task: install the shipped cache entries (when any), render the shard's range (opts.samples), and
     return it as a render.Part."""
     from pbvol_cli.pipeline.cache import cache_dir, install_entry
-    from pbvol_cli.pipeline.render import Part, render_loaded
 
     root = cache_dir(cache)
     for rel, data in (entries or {}).items():
@@ -98,7 +99,6 @@ def render_distributed(jobs: list, dask, shards: int | None = None, ship_cache: 
 
     from pbvol_cli.geometry.scene_build import build_scene
     from pbvol_cli.physics.lights import LIGHT_RGB
-    from pbvol_cli.pipeline.render import implausible_pixels, merge_loaded
 
     for _, path, opts in jobs:
         if opts.time_limit is not None:
@@ -157,3 +157,62 @@ def render_distributed(jobs: list, dask, shards: int | None = None, ship_cache: 
             client.close()
             if cluster is not None:
                 cluster.close()
+
+
+def on_dask(dask, shards: int | None = None, quiet: bool = False):
+    """A renderer for render.render_scene (render_loaded's arguments) that renders on the cluster dask."""
+    def render(scene, scene_path, opts, reference_size=None):
+        r = render_distributed([(scene, scene_path, opts)], dask, shards, quiet=quiet)[0]
+        W, H = r.summary["resolution"]
+        if reference_size is not None and tuple(reference_size) != (W, H):
+            raise PbvolError(f"the reference is {reference_size[0]}x{reference_size[1]}, the render {W}x{H}")
+        return r
+
+    return render
+
+
+def render_batch(scene_paths: list[Path], out_dir: Path, opts, dask: str | None = None,
+                 report=print) -> int:
+    """pbvol batch: every scene rendered to out_dir/<its name>.exr, one after the other, or with dask all their
+    shards on the cluster at once. A scene that fails is reported (report(line)) and
+    the others go on. Returns how many failed."""
+    out_dir = Path(out_dir)
+    if not out_dir.is_dir():
+        raise PbvolError(f"{out_dir}: the output folder does not exist")
+    outs = [out_dir / f"{Path(p).stem}.exr" for p in scene_paths]
+    seen = {}
+    for path, out in zip(scene_paths, outs):
+        if out in seen:
+            raise PbvolError(f"{path}: its image {out.name} would overwrite {seen[out]}'s; rename one")
+        seen[out] = path
+    if opts.shards is not None and dask is None:
+        raise PbvolError("--shards: only with --dask")
+    failed = 0
+    if dask is None:
+        for path, out in zip(scene_paths, outs):
+            try:
+                report(format_summary(render_scene(path, out, opts)))
+            except (PbvolError, OSError) as e:
+                failed += 1
+                report(f"error: {' '.join(str(e).split())}")
+        return failed
+    jobs, targets = [], []
+    for path, out in zip(scene_paths, outs):
+        try:
+            writable_file(out, "the output")
+            jobs.append((C.load_scene(path), Path(path), opts))
+            targets.append(out)
+        except (PbvolError, OSError) as e:
+            failed += 1
+            report(f"error: {' '.join(str(e).split())}")
+    rendered = render_distributed(jobs, dask, opts.shards, quiet=opts.quiet) if jobs else []
+    for out, r in zip(targets, rendered):
+        try:
+            write_render(out, r, opts)
+            report(format_summary({"output": str(out), **r.summary}))
+        except (PbvolError, OSError) as e:
+            failed += 1
+            report(f"error: {' '.join(str(e).split())}")
+    return failed
+
+

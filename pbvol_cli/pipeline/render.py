@@ -199,10 +199,9 @@ def render_loaded(scene: C.Scene, scene_path: Path, opts: RenderOptions, referen
 
 
 def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview: Path | None = None,
-                 reference: Path | None = None, exposure: float = 0.0, dask: str | None = None) -> dict:
-    """Render a scene file to an EXR (render_loaded, or with dask, a scheduler's address or local[N], its sample
-    range split across a Dask cluster: pipeline/distributed.py), then the file. Returns the summary dict (also
-    printed by the CLI)."""
+                 reference: Path | None = None, exposure: float = 0.0, renderer=None) -> dict:
+    """Render a scene file to an EXR (renderer, with render_loaded's arguments: render_loaded itself by default,
+    or pipeline/distributed.on_dask's), then the file. Returns the summary dict (also printed by the CLI)."""
     from pbvol_cli.imageio import read_exr, write_preview_png
 
     if opts.method not in METHODS:
@@ -218,19 +217,12 @@ def render_scene(scene_path: Path, out_path: Path, opts: RenderOptions, preview:
         ref_img, _ = read_exr(reference)
         if not np.all(np.isfinite(ref_img)):
             raise PbvolError(f"{reference}: the reference has non-finite pixels; expected a finite image")
-    if opts.shards is not None and dask is None:
+    if opts.shards is not None and renderer is None:
         raise PbvolError("--shards: only with --dask")
     scene = C.load_scene(scene_path)
     try:
-        if dask is not None:
-            from pbvol_cli.pipeline.distributed import render_distributed
-
-            r = render_distributed([(scene, Path(scene_path), opts)], dask, opts.shards, quiet=opts.quiet)[0]
-            if ref_img is not None and ref_img.shape[1::-1] != r.image.shape[1::-1]:
-                raise PbvolError(f"the reference is {ref_img.shape[1]}x{ref_img.shape[0]}, the render "
-                                 f"{r.image.shape[1]}x{r.image.shape[0]}")
-        else:
-            r = render_loaded(scene, scene_path, opts, None if ref_img is None else ref_img.shape[1::-1])
+        r = (renderer or render_loaded)(scene, Path(scene_path), opts,
+                                        None if ref_img is None else ref_img.shape[1::-1])
     except PbvolError as e:
         if ref_img is not None and str(e).startswith("the reference is"):
             raise PbvolError(f"{reference}: {e}") from None
@@ -261,53 +253,6 @@ def write_render(out_path: Path, r: Rendered, opts: RenderOptions):
         save_sample_sums(out_path, r.sums, r.metadata, r.surface_paths)
     if r.problem:
         raise RenderFailed(f"{out_path}: written, but {r.problem}: the render failed (please report the scene)")
-
-
-def render_batch(scene_paths: list[Path], out_dir: Path, opts: RenderOptions, dask: str | None = None,
-                 report=print) -> int:
-    """pbvol batch: every scene rendered to out_dir/<its name>.exr, one after the other, or with dask all their
-    shards on the cluster at once (pipeline/distributed.py). A scene that fails is reported (report(line)) and
-    the others go on. Returns how many failed."""
-    out_dir = Path(out_dir)
-    if not out_dir.is_dir():
-        raise PbvolError(f"{out_dir}: the output folder does not exist")
-    outs = [out_dir / f"{Path(p).stem}.exr" for p in scene_paths]
-    seen = {}
-    for path, out in zip(scene_paths, outs):
-        if out in seen:
-            raise PbvolError(f"{path}: its image {out.name} would overwrite {seen[out]}'s; rename one")
-        seen[out] = path
-    if opts.shards is not None and dask is None:
-        raise PbvolError("--shards: only with --dask")
-    failed = 0
-    if dask is None:
-        for path, out in zip(scene_paths, outs):
-            try:
-                report(format_summary(render_scene(path, out, opts)))
-            except (PbvolError, OSError) as e:
-                failed += 1
-                report(f"error: {' '.join(str(e).split())}")
-        return failed
-    from pbvol_cli.pipeline.distributed import render_distributed
-
-    jobs, targets = [], []
-    for path, out in zip(scene_paths, outs):
-        try:
-            writable_file(out, "the output")
-            jobs.append((C.load_scene(path), Path(path), opts))
-            targets.append(out)
-        except (PbvolError, OSError) as e:
-            failed += 1
-            report(f"error: {' '.join(str(e).split())}")
-    rendered = render_distributed(jobs, dask, opts.shards, quiet=opts.quiet) if jobs else []
-    for out, r in zip(targets, rendered):
-        try:
-            write_render(out, r, opts)
-            report(format_summary({"output": str(out), **r.summary}))
-        except (PbvolError, OSError) as e:
-            failed += 1
-            report(f"error: {' '.join(str(e).split())}")
-    return failed
 
 
 def sums_path(exr: Path) -> Path:

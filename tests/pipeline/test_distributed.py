@@ -15,8 +15,8 @@ from typer.testing import CliRunner
 from conftest import write_scene
 from pbvol_cli import config as C
 from pbvol_cli.main import app
-from pbvol_cli.pipeline.distributed import render_distributed, shard_ranges
-from pbvol_cli.pipeline.render import RenderOptions, render_batch, render_loaded
+from pbvol_cli.pipeline.distributed import render_batch, render_distributed, shard_ranges
+from pbvol_cli.pipeline.render import RenderOptions, render_loaded
 from test_api import SCENE
 from test_merge import PASS_SCENE
 
