@@ -2,8 +2,11 @@
 """Distributed rendering's efficiency: one scene rendered by one process and on local Dask clusters of 1 and 2
 worker processes, timed by the command line, with the images checked equal bit for bit.
 
-    .venv/bin/python benchmarks/dask_bench.py [--scenes oil_sphere:volpath:256,wax_sphere:pbl:4]
+    .venv/bin/python benchmarks/dask_bench.py [--scenes oil_sphere:volpath:1024,wax_sphere:pbl:4,wax_sphere:pbl:4:8]
                                               [--resolution 128] [--workers 1,2]
+
+A scene is config:method:spp[:surface_paths] (the last: pbl's camera paths per pixel, fixed, written into a copy
+of the config under the output folder; configs with relative mesh paths cannot take it).
 
 Every run uses all of the machine's cores (one process: threads = cores; local[N]: N processes of cores / N
 threads), so efficiency = one process's time / the cluster's. Each is also timed at 1 sample (pass): that is
@@ -40,8 +43,8 @@ def pbvol(*args) -> float:
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--scenes", default="oil_sphere:volpath:256,wax_sphere:pbl:4",
-                    help="comma list of config:method:spp")
+    ap.add_argument("--scenes", default="oil_sphere:volpath:1024,wax_sphere:pbl:4,wax_sphere:pbl:4:8",
+                    help="comma list of config:method:spp[:surface_paths]")
     ap.add_argument("--resolution", type=int, default=128)
     ap.add_argument("--workers", default="1,2")
     output_args(ap)
@@ -55,8 +58,18 @@ def main():
     res = f"{args.resolution}x{args.resolution}"
     rows = []
     for item in args.scenes.split(","):
-        name, method, spp = item.split(":")
+        name, method, spp, *paths = item.split(":")
         scene = ROOT / "configs" / f"{name}.toml"
+        if paths:
+            import tomllib
+
+            import tomli_w
+
+            data = tomllib.loads(scene.read_text())
+            data.setdefault("render", {}).setdefault("pbl", {})["surface_paths"] = int(paths[0])
+            scene = args.out / f"dask_{name}_paths{paths[0]}.toml"
+            scene.write_text(tomli_w.dumps(data))
+            name = f"{name}_paths{paths[0]}"
         common = [scene, "--method", method, "--resolution", res, "--cache-dir", args.cache]
         pbvol(*common, "--spp", 1, "-o", args.out / "dask_warm.exr")  # compiled kernels, cached samples
         one1 = pbvol(*common, "--spp", 1, "--threads", args.threads, "-o", args.out / "dask_warm.exr")
