@@ -188,6 +188,9 @@ def _interact_one(i, surfaces, lights, rays, hits, limits, emit, children, shado
 # surface_paths = 0 (auto): the first two passes trace AUTO_FIRST_PATHS paths per pixel; from then on each pixel's
 # count is sqrt(PASS_COST_RATIO S1_p / M) (auto_surface_paths), from the passes before it
 AUTO_FIRST_PATHS = 8
+CAMERA_CHUNK = 1 << 16  # camera paths traced together: a generation holds a few kB per ray (children, shadow rays,
+# contributions), and splitting at glass multiplies the rays; 2^18 made a 512 x 512 pass peak 0.7 GB above its
+# light samples (docs/pbl.md, memory)
 AUTO_MAX_PATHS = 128  # the mean over the pixels, at most
 AUTO_MAX_PIXEL_PATHS = 1024  # one pixel's, at most (a small light's mirror image on glass wants hundreds)
 PASS_COST_RATIO = 20.0  # a pass's medium work in surface paths per pixel (docs/pbl.md). The optimum is flat in it
@@ -315,7 +318,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     stats = PixelStatistics(npix, W)
     ks = []
     t0 = time.perf_counter()
-    chunk = 1 << 18
+    chunk = CAMERA_CHUNK
     done, first_sample = first_path_indices(pbl.surface_paths, first_pass, npix)
     samples_so_far = np.full(npix, first_sample, np.int64)  # each pixel's (its next path's sample index)
     passes = 0
