@@ -122,14 +122,21 @@ def install_entry(path: Path, data: bytes) -> bool:
     if _load(path, ())[0] is not None:
         return False
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{uuid.uuid4().hex[:8]}.tmp.npz")
+    write_bytes_atomic(path, data)
+    return True
+
+
+def write_bytes_atomic(path: Path, data: bytes) -> None:
+    """Write data to path through a temporary file in the same folder (.NAME.XXXXXXXX.tmp.SUFFIX, which
+    remove_stale_temporaries recognises), renamed over it: a reader never sees half a file."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.{uuid.uuid4().hex[:8]}.tmp{path.suffix}")
     try:
         tmp.write_bytes(data)
         os.replace(tmp, path)
     finally:
         if tmp.exists():
             tmp.unlink()
-    return True
 
 
 def cached_entry(path: Path, required: tuple[str, ...], from_arrays, build, force: bool = False):

@@ -51,9 +51,7 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import struct
-import uuid
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -62,6 +60,7 @@ import numpy as np
 
 from pbvol_cli import config as C
 from pbvol_cli.errors import ConfigError, PbvolError
+from pbvol_cli.pipeline.cache import write_bytes_atomic
 from pbvol_cli.physics.phase import KINDS, phase_eval
 
 FORMATS = (".json", ".xml")
@@ -111,22 +110,11 @@ def export_mitsuba(scene_path: Path, out_path: Path, spp: int | None = None, res
     try:
         out_path.parent.mkdir(parents=True, exist_ok=True)
         for name, data in exported.files.items():
-            write_atomic(out_path.parent / name, data)
-        write_atomic(out_path, text.encode())
+            write_bytes_atomic(out_path.parent / name, data)
+        write_bytes_atomic(out_path, text.encode())
     except OSError as e:
         raise PbvolError(f"{out_path}: cannot write: {e.strerror or e}") from None
     return exported.warnings
-
-
-def write_atomic(path: Path, data: bytes) -> None:
-    """Write data to path through a temporary file in the same folder, renamed over it."""
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")
-    try:
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 # --------------------------------------------------------------------------- the scene
