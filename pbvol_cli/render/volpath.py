@@ -226,197 +226,204 @@ def _nee(i, px, py, pz, kind, nx, ny, nz, dx, dy, dz, phase_kind, g, albedo, med
 
 
 @njit(cache=True)
-def _path_advance(i, fresh, S, misc, st, sh, hits):
-    """Advance path i until it needs a triangle cast, has emitted a shadow ray, or is dead."""
+def _path_advance(active, lo, hi, S, misc, st, sh, hits):
+    """Advance paths active[lo:hi] each until it needs a triangle cast, has emitted a shadow ray, or is dead."""
     tri_surface, tri_normals, spheres, surfaces, media, lights, grid_params, grid_cells, density = S
     pos, dirs, beta, L, rng, status, medium, depth, nscat, tpend, prev_pos, prev_pdf, eta_scale, tmaj = st
     hit_t, hit_prim, hit_u, hit_v, hit_ng = hits
     eps = misc[M_EPS]
     has_mesh = misc[M_HASMESH] > 0.0
     nl = lights.shape[0]
-    while True:
-        ox, oy, oz = pos[i, 0], pos[i, 1], pos[i, 2]
-        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
-        m = medium[i]
-        tp = tpend[i] if m >= 0 else INF
-        # --- the closest event along the ray: scattering (tp), analytic hit, or triangle hit
-        ta, akind, aidx = analytic_hit(spheres, lights, ox, oy, oz, dx, dy, dz, INF)
-        if fresh:
-            tm, prim = hit_t[i], hit_prim[i]
-            fresh = False
-        else:
-            tm, prim = INF, -1
-            if has_mesh:
-                need = min(tp, ta)
-                if not (need < mesh_distance_bound(grid_params, grid_cells, ox, oy, oz)):
-                    status[i] = NEED_CAST
-                    return
-        tsurf = min(ta, tm)
-        if m >= 0:
-            if tp < tsurf:
-                px, py, pz = ox + tp * dx, oy + tp * dy, oz + tp * dz
-                if media[m, MED_KIND] != HOMOGENEOUS:
-                    # ---------------- a tentative collision: emission, then a real or a null collision
-                    real, e0, e1, e2 = tentative_collision(media, density, m, beta, i, px, py, pz, rng, tmaj[i])
-                    if _order_ok(misc, nscat[i]):
-                        L[i, 0] += e0
-                        L[i, 1] += e1
-                        L[i, 2] += e2
-                    if not real:
-                        if beta[i, 0] == 0.0 and beta[i, 1] == 0.0 and beta[i, 2] == 0.0:
-                            status[i] = DEAD
-                            return
-                        pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
-                        tpend[i] = free_flight(media, m, beta, i, rng, density, pos, dirs, tmaj)
-                        if tm < INF:  # the same ray: its triangle hit is still ahead, tp nearer
-                            hit_t[i] = tm - tp
-                            fresh = True
-                        continue
-                else:
-                    flight_weight(media, m, beta, i, tp, True)
-                # ---------------- scattering event
-                nscat[i] += 1
-                depth[i] += 1
-                if depth[i] > misc[M_MAXDEPTH] or nscat[i] > misc[M_MAXORDER]:
-                    status[i] = DEAD
-                    return
-                kind, g = int(media[m, MED_PHASE]), media[m, MED_G]
-                # MIS applies whenever the NEE strategy is on here, whether or not this sample contributed.
-                nee_on = media[m, MED_SEALED] == 0.0 and nl > 0
-                did_nee = False
-                if nee_on:
-                    did_nee = _nee(i, px, py, pz, as_runtime(0), 0.0, 0.0, 0.0, dx, dy, dz, kind, g,
-                                   media[m, MED_SIGMA_A:MED_SIGMA_A + 3], m, S, misc, st, sh)
-                wx, wy, wz, pdf = phase_sample(kind, g, dx, dy, dz, rand(rng, i), rand(rng, i), rand(rng, i))
-                prev_pos[i, 0], prev_pos[i, 1], prev_pos[i, 2] = px, py, pz
-                prev_pdf[i] = pdf if nee_on else 0.0
-                if not _russian_roulette(misc, beta, eta_scale, depth, rng, i):
-                    status[i] = DEAD
-                    return
-                pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
-                dirs[i, 0], dirs[i, 1], dirs[i, 2] = wx, wy, wz
-                tpend[i] = free_flight(media, m, beta, i, rng, density, pos, dirs, tmaj)
-                if did_nee:
-                    status[i] = CONTINUE
-                    return
+    for j in range(lo, hi):
+        i = active[j]
+        fresh = status[i] == NEED_CAST
+        while True:
+            ox, oy, oz = pos[i, 0], pos[i, 1], pos[i, 2]
+            dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+            m = medium[i]
+            tp = tpend[i] if m >= 0 else INF
+            # --- the closest event along the ray: scattering (tp), analytic hit, or triangle hit
+            ta, akind, aidx = analytic_hit(spheres, lights, ox, oy, oz, dx, dy, dz, INF)
+            if fresh:
+                tm, prim = hit_t[i], hit_prim[i]
+                fresh = False
+            else:
+                tm, prim = INF, -1
+                if has_mesh:
+                    need = min(tp, ta)
+                    if not (need < mesh_distance_bound(grid_params, grid_cells, ox, oy, oz)):
+                        status[i] = NEED_CAST
+                        break
+            tsurf = min(ta, tm)
+            if m >= 0:
+                if tp < tsurf:
+                    px, py, pz = ox + tp * dx, oy + tp * dy, oz + tp * dz
+                    if media[m, MED_KIND] != HOMOGENEOUS:
+                        # ---------------- a tentative collision: emission, then a real or a null collision
+                        real, e0, e1, e2 = tentative_collision(media, density, m, beta, i, px, py, pz, rng, tmaj[i])
+                        if _order_ok(misc, nscat[i]):
+                            L[i, 0] += e0
+                            L[i, 1] += e1
+                            L[i, 2] += e2
+                        if not real:
+                            if beta[i, 0] == 0.0 and beta[i, 1] == 0.0 and beta[i, 2] == 0.0:
+                                status[i] = DEAD
+                                break
+                            pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
+                            tpend[i] = free_flight(media, m, beta, i, rng, density, pos, dirs, tmaj)
+                            if tm < INF:  # the same ray: its triangle hit is still ahead, tp nearer
+                                hit_t[i] = tm - tp
+                                fresh = True
+                            continue
+                    else:
+                        flight_weight(media, m, beta, i, tp, True)
+                    # ---------------- scattering event
+                    nscat[i] += 1
+                    depth[i] += 1
+                    if depth[i] > misc[M_MAXDEPTH] or nscat[i] > misc[M_MAXORDER]:
+                        status[i] = DEAD
+                        break
+                    kind, g = int(media[m, MED_PHASE]), media[m, MED_G]
+                    # MIS applies whenever the NEE strategy is on here, whether or not this sample contributed.
+                    nee_on = media[m, MED_SEALED] == 0.0 and nl > 0
+                    did_nee = False
+                    if nee_on:
+                        did_nee = _nee(i, px, py, pz, as_runtime(0), 0.0, 0.0, 0.0, dx, dy, dz, kind, g,
+                                       media[m, MED_SIGMA_A:MED_SIGMA_A + 3], m, S, misc, st, sh)
+                    wx, wy, wz, pdf = phase_sample(kind, g, dx, dy, dz, rand(rng, i), rand(rng, i), rand(rng, i))
+                    prev_pos[i, 0], prev_pos[i, 1], prev_pos[i, 2] = px, py, pz
+                    prev_pdf[i] = pdf if nee_on else 0.0
+                    if not _russian_roulette(misc, beta, eta_scale, depth, rng, i):
+                        status[i] = DEAD
+                        break
+                    pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
+                    dirs[i, 0], dirs[i, 1], dirs[i, 2] = wx, wy, wz
+                    tpend[i] = free_flight(media, m, beta, i, rng, density, pos, dirs, tmaj)
+                    if did_nee:
+                        status[i] = CONTINUE
+                        break
+                    continue
+                if tsurf < INF and media[m, MED_KIND] == HOMOGENEOUS:
+                    flight_weight(media, m, beta, i, tsurf, False)
+            # ---------------- escape to the environment
+            if tsurf == INF:
+                for li in range(nl):
+                    if lights[li, LIGHT_TYPE] == ENVIRONMENT and _order_ok(misc, nscat[i]):
+                        w = 1.0
+                        if prev_pdf[i] > 0.0:
+                            w = power_heuristic(prev_pdf[i], light_pdf(lights, li, 0.0, 0.0, 0.0, dx, dy, dz, INF) / nl)
+                        _add_emission(L, beta, i, lights[li, LIGHT_RGB], lights[li, LIGHT_RGB + 1],
+                                      lights[li, LIGHT_RGB + 2], w)
+                status[i] = DEAD
+                break
+            hx, hy, hz = ox + tsurf * dx, oy + tsurf * dy, oz + tsurf * dz
+            # ---------------- area light
+            if tm > ta and akind == 2:
+                if _order_ok(misc, nscat[i]):
+                    e = emitted_toward(lights, aidx, dx, dy, dz, ox, oy, oz, ta)
+                    if e > 0.0:
+                        w = 1.0
+                        if prev_pdf[i] > 0.0:
+                            qx, qy, qz = hx - prev_pos[i, 0], hy - prev_pos[i, 1], hz - prev_pos[i, 2]
+                            dist = math.sqrt(qx * qx + qy * qy + qz * qz)
+                            w = power_heuristic(prev_pdf[i], light_pdf(lights, aidx, prev_pos[i, 0], prev_pos[i, 1],
+                                                                       prev_pos[i, 2], dx, dy, dz, dist) / nl)
+                        _add_emission(L, beta, i, lights[aidx, LIGHT_RGB], lights[aidx, LIGHT_RGB + 1],
+                                      lights[aidx, LIGHT_RGB + 2], w * e)
+                status[i] = DEAD
+                break
+            # ---------------- a surface: geometric normal (exterior side) and shading normal
+            if tm <= ta:
+                s = tri_surface[prim]
+                gx, gy, gz = float(hit_ng[i, 0]), float(hit_ng[i, 1]), float(hit_ng[i, 2])
+                inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
+                gx, gy, gz = gx * inv, gy * inv, gz * inv
+                nx, ny, nz = mesh_shading_normal(tri_normals, prim, float(hit_u[i]), float(hit_v[i]))
+            else:
+                s = int(spheres[aidx, SPH_SURFACE])
+                r = spheres[aidx, SPH_RADIUS]
+                gx = (hx - spheres[aidx, SPH_CENTER]) / r
+                gy = (hy - spheres[aidx, SPH_CENTER + 1]) / r
+                gz = (hz - spheres[aidx, SPH_CENTER + 2]) / r
+                inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
+                gx, gy, gz = gx * inv, gy * inv, gz * inv
+                nx, ny, nz = gx, gy, gz
+            stype = surfaces[s, SURF_TYPE]
+            entering, fgx, fgy, fgz, fnx, fny, fnz = incident_side(dx, dy, dz, gx, gy, gz, nx, ny, nz)
+            if stype == NULL:
+                medium[i] = medium_beyond(surfaces, s, entering)
+                pos[i, 0], pos[i, 1], pos[i, 2] = hx - eps * fgx, hy - eps * fgy, hz - eps * fgz
+                if medium[i] >= 0:
+                    tpend[i] = free_flight(media, medium[i], beta, i, rng, density, pos, dirs, tmaj)
                 continue
-            if tsurf < INF and media[m, MED_KIND] == HOMOGENEOUS:
-                flight_weight(media, m, beta, i, tsurf, False)
-        # ---------------- escape to the environment
-        if tsurf == INF:
-            for li in range(nl):
-                if lights[li, LIGHT_TYPE] == ENVIRONMENT and _order_ok(misc, nscat[i]):
-                    w = 1.0
-                    if prev_pdf[i] > 0.0:
-                        w = power_heuristic(prev_pdf[i], light_pdf(lights, li, 0.0, 0.0, 0.0, dx, dy, dz, INF) / nl)
-                    _add_emission(L, beta, i, lights[li, LIGHT_RGB], lights[li, LIGHT_RGB + 1],
-                                  lights[li, LIGHT_RGB + 2], w)
-            status[i] = DEAD
-            return
-        hx, hy, hz = ox + tsurf * dx, oy + tsurf * dy, oz + tsurf * dz
-        # ---------------- area light
-        if tm > ta and akind == 2:
-            if _order_ok(misc, nscat[i]):
-                e = emitted_toward(lights, aidx, dx, dy, dz, ox, oy, oz, ta)
-                if e > 0.0:
-                    w = 1.0
-                    if prev_pdf[i] > 0.0:
-                        qx, qy, qz = hx - prev_pos[i, 0], hy - prev_pos[i, 1], hz - prev_pos[i, 2]
-                        dist = math.sqrt(qx * qx + qy * qy + qz * qz)
-                        w = power_heuristic(prev_pdf[i], light_pdf(lights, aidx, prev_pos[i, 0], prev_pos[i, 1],
-                                                                   prev_pos[i, 2], dx, dy, dz, dist) / nl)
-                    _add_emission(L, beta, i, lights[aidx, LIGHT_RGB], lights[aidx, LIGHT_RGB + 1],
-                                  lights[aidx, LIGHT_RGB + 2], w * e)
-            status[i] = DEAD
-            return
-        # ---------------- a surface: geometric normal (exterior side) and shading normal
-        if tm <= ta:
-            s = tri_surface[prim]
-            gx, gy, gz = float(hit_ng[i, 0]), float(hit_ng[i, 1]), float(hit_ng[i, 2])
-            inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
-            gx, gy, gz = gx * inv, gy * inv, gz * inv
-            nx, ny, nz = mesh_shading_normal(tri_normals, prim, float(hit_u[i]), float(hit_v[i]))
-        else:
-            s = int(spheres[aidx, SPH_SURFACE])
-            r = spheres[aidx, SPH_RADIUS]
-            gx = (hx - spheres[aidx, SPH_CENTER]) / r
-            gy = (hy - spheres[aidx, SPH_CENTER + 1]) / r
-            gz = (hz - spheres[aidx, SPH_CENTER + 2]) / r
-            inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
-            gx, gy, gz = gx * inv, gy * inv, gz * inv
-            nx, ny, nz = gx, gy, gz
-        stype = surfaces[s, SURF_TYPE]
-        entering, fgx, fgy, fgz, fnx, fny, fnz = incident_side(dx, dy, dz, gx, gy, gz, nx, ny, nz)
-        if stype == NULL:
-            medium[i] = medium_beyond(surfaces, s, entering)
-            pos[i, 0], pos[i, 1], pos[i, 2] = hx - eps * fgx, hy - eps * fgy, hz - eps * fgz
+            depth[i] += 1
+            if depth[i] > misc[M_MAXDEPTH]:
+                status[i] = DEAD
+                break
+            did_nee = False
+            nee_on = False
+            if stype == DIELECTRIC:
+                wx, wy, wz, refracted, eta_i, eta_t = dielectric_choice(surfaces, s, entering, dx, dy, dz, fnx, fny,
+                                                                        fnz, rand(rng, i))
+                if refracted:  # radiance scales by (eta_i / eta_t)^2 across the interface
+                    k = (eta_i / eta_t) ** 2
+                    beta[i, 0] *= k
+                    beta[i, 1] *= k
+                    beta[i, 2] *= k
+                    eta_scale[i] /= k
+                prev_pdf[i] = 0.0
+            elif stype == MIRROR:
+                wx, wy, wz = reflect(dx, dy, dz, fnx, fny, fnz)
+                beta[i, 0] *= surfaces[s, SURF_ALBEDO]
+                beta[i, 1] *= surfaces[s, SURF_ALBEDO + 1]
+                beta[i, 2] *= surfaces[s, SURF_ALBEDO + 2]
+                prev_pdf[i] = 0.0
+            else:  # DIFFUSE
+                cur = medium[i]
+                nee_on = (cur < 0 or media[cur, MED_SEALED] == 0.0) and nl > 0
+                if nee_on:
+                    did_nee = _nee(i, hx, hy, hz, as_runtime(1), fnx, fny, fnz, dx, dy, dz, as_runtime(0), 0.0,
+                                   surfaces[s, SURF_ALBEDO:SURF_ALBEDO + 3], cur, S, misc, st, sh)
+                wx, wy, wz = cosine_hemisphere(rand(rng, i), rand(rng, i), fnx, fny, fnz)
+                c = wx * fnx + wy * fny + wz * fnz
+                beta[i, 0] *= surfaces[s, SURF_ALBEDO]
+                beta[i, 1] *= surfaces[s, SURF_ALBEDO + 1]
+                beta[i, 2] *= surfaces[s, SURF_ALBEDO + 2]
+                prev_pdf[i] = c / math.pi if nee_on else 0.0
+                prev_pos[i, 0], prev_pos[i, 1], prev_pos[i, 2] = hx, hy, hz
+            # side of the geometric surface the new direction leaves on decides the medium
+            out_ext = wx * gx + wy * gy + wz * gz > 0.0
+            if stype == DIELECTRIC:
+                medium[i] = medium_beyond(surfaces, s, not out_ext)
+            elif (out_ext != entering):  # opaque surface: a direction below the surface ends the path
+                status[i] = DEAD
+                break
+            off = eps if out_ext else -eps
+            pos[i, 0], pos[i, 1], pos[i, 2] = hx + off * gx, hy + off * gy, hz + off * gz
+            dirs[i, 0], dirs[i, 1], dirs[i, 2] = wx, wy, wz
+            if not _russian_roulette(misc, beta, eta_scale, depth, rng, i):
+                status[i] = DEAD
+                break
             if medium[i] >= 0:
                 tpend[i] = free_flight(media, medium[i], beta, i, rng, density, pos, dirs, tmaj)
-            continue
-        depth[i] += 1
-        if depth[i] > misc[M_MAXDEPTH]:
-            status[i] = DEAD
-            return
-        did_nee = False
-        nee_on = False
-        if stype == DIELECTRIC:
-            wx, wy, wz, refracted, eta_i, eta_t = dielectric_choice(surfaces, s, entering, dx, dy, dz, fnx, fny, fnz,
-                                                                    rand(rng, i))
-            if refracted:  # radiance scales by (eta_i / eta_t)^2 across the interface
-                k = (eta_i / eta_t) ** 2
-                beta[i, 0] *= k
-                beta[i, 1] *= k
-                beta[i, 2] *= k
-                eta_scale[i] /= k
-            prev_pdf[i] = 0.0
-        elif stype == MIRROR:
-            wx, wy, wz = reflect(dx, dy, dz, fnx, fny, fnz)
-            beta[i, 0] *= surfaces[s, SURF_ALBEDO]
-            beta[i, 1] *= surfaces[s, SURF_ALBEDO + 1]
-            beta[i, 2] *= surfaces[s, SURF_ALBEDO + 2]
-            prev_pdf[i] = 0.0
-        else:  # DIFFUSE
-            cur = medium[i]
-            nee_on = (cur < 0 or media[cur, MED_SEALED] == 0.0) and nl > 0
-            if nee_on:
-                did_nee = _nee(i, hx, hy, hz, as_runtime(1), fnx, fny, fnz, dx, dy, dz, as_runtime(0), 0.0,
-                               surfaces[s, SURF_ALBEDO:SURF_ALBEDO + 3], cur, S, misc, st, sh)
-            wx, wy, wz = cosine_hemisphere(rand(rng, i), rand(rng, i), fnx, fny, fnz)
-            c = wx * fnx + wy * fny + wz * fnz
-            beta[i, 0] *= surfaces[s, SURF_ALBEDO]
-            beta[i, 1] *= surfaces[s, SURF_ALBEDO + 1]
-            beta[i, 2] *= surfaces[s, SURF_ALBEDO + 2]
-            prev_pdf[i] = c / math.pi if nee_on else 0.0
-            prev_pos[i, 0], prev_pos[i, 1], prev_pos[i, 2] = hx, hy, hz
-        # side of the geometric surface the new direction leaves on decides the medium
-        out_ext = wx * gx + wy * gy + wz * gz > 0.0
-        if stype == DIELECTRIC:
-            medium[i] = medium_beyond(surfaces, s, not out_ext)
-        elif (out_ext != entering):  # opaque surface: a direction below the surface ends the path
-            status[i] = DEAD
-            return
-        off = eps if out_ext else -eps
-        pos[i, 0], pos[i, 1], pos[i, 2] = hx + off * gx, hy + off * gy, hz + off * gz
-        dirs[i, 0], dirs[i, 1], dirs[i, 2] = wx, wy, wz
-        if not _russian_roulette(misc, beta, eta_scale, depth, rng, i):
-            status[i] = DEAD
-            return
-        if medium[i] >= 0:
-            tpend[i] = free_flight(media, medium[i], beta, i, rng, density, pos, dirs, tmaj)
-        if did_nee:
-            status[i] = CONTINUE
-            return
+            if did_nee:
+                status[i] = CONTINUE
+                break
 
 
 # Numba pitfall: arrays unpacked from a tuple inside a parallel function lose their writes in prange
 # (numba 0.68). Parallel kernels therefore only loop and call an inner function that takes the tuples.
 
 
+PATH_CHUNK = 256  # paths a kernel call advances: the tuples' arrays are unpacked (reference counts taken) once per
+# call, which per path cost about as much as a path that misses everything
+
+
 @njit(parallel=True, cache=True)
 def advance_paths(active, S, misc, st, sh, hits):
-    for k in prange(active.shape[0]):
-        i = active[k]
-        _path_advance(i, st.status[i] == NEED_CAST, S, misc, st, sh, hits)
+    n = active.shape[0]
+    for c in prange((n + PATH_CHUNK - 1) // PATH_CHUNK):
+        _path_advance(active, c * PATH_CHUNK, min(n, (c + 1) * PATH_CHUNK), S, misc, st, sh, hits)
 
 
 @njit(parallel=True, cache=True)
@@ -425,68 +432,71 @@ def advance_shadows(active, fresh_flags, S, misc, sh, hits, L):
 
     Leaves sh_active True (and fresh_flags[k] = 1) for rays that need a triangle cast.
     """
-    for k in prange(active.shape[0]):
-        _shadow_advance(active[k], np.int64(k), fresh_flags, S, misc, sh, hits, L)  # (as in init_paths)
+    n = active.shape[0]
+    for c in prange((n + PATH_CHUNK - 1) // PATH_CHUNK):
+        _shadow_advance(active, c * PATH_CHUNK, min(n, (c + 1) * PATH_CHUNK), fresh_flags, S, misc, sh, hits, L)
 
 
 @njit(cache=True)
-def _shadow_advance(i, k, fresh_flags, S, misc, sh, hits, L):
+def _shadow_advance(active, lo, hi, fresh_flags, S, misc, sh, hits, L):
     tri_surface, tri_normals, spheres, surfaces, media, lights, grid_params, grid_cells, density = S
     sh_active, sh_pos, sh_dir, sh_tmax, sh_C, sh_med, sh_light, sh_rng = sh
     hit_t, hit_prim, hit_u, hit_v, hit_ng = hits
     eps = misc[M_EPS]
     has_mesh = misc[M_HASMESH] > 0.0
-    fresh = fresh_flags[k] == 1
-    fresh_flags[k] = 0
-    while True:
-        ox, oy, oz = sh_pos[i, 0], sh_pos[i, 1], sh_pos[i, 2]
-        dx, dy, dz = sh_dir[i, 0], sh_dir[i, 1], sh_dir[i, 2]
-        tmax = sh_tmax[i]
-        ta, akind, aidx = analytic_hit(spheres, lights, ox, oy, oz, dx, dy, dz, tmax, sh_light[i])
-        if fresh:
-            tm, prim = hit_t[i], hit_prim[i]
-            fresh = False
-        else:
-            tm, prim = INF, -1
-            if has_mesh and not (min(ta, tmax) < mesh_distance_bound(grid_params, grid_cells, ox, oy, oz)):
-                fresh_flags[k] = 1
+    for k in range(lo, hi):
+        i = active[k]
+        fresh = fresh_flags[k] == 1
+        fresh_flags[k] = 0
+        while True:
+            ox, oy, oz = sh_pos[i, 0], sh_pos[i, 1], sh_pos[i, 2]
+            dx, dy, dz = sh_dir[i, 0], sh_dir[i, 1], sh_dir[i, 2]
+            tmax = sh_tmax[i]
+            ta, akind, aidx = analytic_hit(spheres, lights, ox, oy, oz, dx, dy, dz, tmax, sh_light[i])
+            if fresh:
+                tm, prim = hit_t[i], hit_prim[i]
+                fresh = False
+            else:
+                tm, prim = INF, -1
+                if has_mesh and not (min(ta, tmax) < mesh_distance_bound(grid_params, grid_cells, ox, oy, oz)):
+                    fresh_flags[k] = 1
+                    break
+            t = min(ta, tm)
+            m = sh_med[i]
+            if t >= tmax:
+                if m >= 0 and tmax < INF:
+                    segment_transmittance(media, density, m, ox, oy, oz, dx, dy, dz, tmax, sh_rng, i, sh_C)
+                elif m >= 0:
+                    sh_C[i, 0] = sh_C[i, 1] = sh_C[i, 2] = 0.0
+                L[i, 0] += sh_C[i, 0]
+                L[i, 1] += sh_C[i, 1]
+                L[i, 2] += sh_C[i, 2]
+                sh_active[i] = False
                 break
-        t = min(ta, tm)
-        m = sh_med[i]
-        if t >= tmax:
-            if m >= 0 and tmax < INF:
-                segment_transmittance(media, density, m, ox, oy, oz, dx, dy, dz, tmax, sh_rng, i, sh_C)
-            elif m >= 0:
-                sh_C[i, 0] = sh_C[i, 1] = sh_C[i, 2] = 0.0
-            L[i, 0] += sh_C[i, 0]
-            L[i, 1] += sh_C[i, 1]
-            L[i, 2] += sh_C[i, 2]
-            sh_active[i] = False
-            break
-        if tm <= ta:
-            s = tri_surface[prim]
-            gx, gy, gz = float(hit_ng[i, 0]), float(hit_ng[i, 1]), float(hit_ng[i, 2])
-        elif akind == 1:
-            s = int(spheres[aidx, SPH_SURFACE])
-            hx, hy, hz = ox + t * dx, oy + t * dy, oz + t * dz
-            gx, gy = hx - spheres[aidx, SPH_CENTER], hy - spheres[aidx, SPH_CENTER + 1]
-            gz = hz - spheres[aidx, SPH_CENTER + 2]
-        else:
-            s = -1
-        if s < 0 or surfaces[s, SURF_TYPE] != NULL:
-            sh_active[i] = False  # blocked
-            break
-        if m >= 0:
-            segment_transmittance(media, density, m, ox, oy, oz, dx, dy, dz, t, sh_rng, i, sh_C)
-        inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
-        gx, gy, gz = gx * inv, gy * inv, gz * inv
-        entering = dx * gx + dy * gy + dz * gz < 0.0
-        sh_med[i] = medium_beyond(surfaces, s, entering)
-        sgn = -1.0 if entering else 1.0
-        sh_pos[i, 0] = ox + t * dx + sgn * eps * gx
-        sh_pos[i, 1] = oy + t * dy + sgn * eps * gy
-        sh_pos[i, 2] = oz + t * dz + sgn * eps * gz
-        sh_tmax[i] = tmax - t
+            if tm <= ta:
+                s = tri_surface[prim]
+                gx, gy, gz = float(hit_ng[i, 0]), float(hit_ng[i, 1]), float(hit_ng[i, 2])
+            elif akind == 1:
+                s = int(spheres[aidx, SPH_SURFACE])
+                hx, hy, hz = ox + t * dx, oy + t * dy, oz + t * dz
+                gx, gy = hx - spheres[aidx, SPH_CENTER], hy - spheres[aidx, SPH_CENTER + 1]
+                gz = hz - spheres[aidx, SPH_CENTER + 2]
+            else:
+                s = -1
+            if s < 0 or surfaces[s, SURF_TYPE] != NULL:
+                sh_active[i] = False  # blocked
+                break
+            if m >= 0:
+                segment_transmittance(media, density, m, ox, oy, oz, dx, dy, dz, t, sh_rng, i, sh_C)
+            inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
+            gx, gy, gz = gx * inv, gy * inv, gz * inv
+            entering = dx * gx + dy * gy + dz * gz < 0.0
+            sh_med[i] = medium_beyond(surfaces, s, entering)
+            sgn = -1.0 if entering else 1.0
+            sh_pos[i, 0] = ox + t * dx + sgn * eps * gx
+            sh_pos[i, 1] = oy + t * dy + sgn * eps * gy
+            sh_pos[i, 2] = oz + t * dz + sgn * eps * gz
+            sh_tmax[i] = tmax - t
 
 
 @njit(parallel=True, cache=True)
