@@ -375,11 +375,14 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts, scene_path, 
         return _render_raymarch(scene, built, spp, seed, threads, time_limit, opts, first_pass)
     side = light_side(scene, built, seed, threads, opts, scene_path)
     pbl, res, stages = side.pbl, side.samples, side.stages
+    samples = [res.samples if res else None]  # the passes take the only reference: freed when no longer needed
+    if res:
+        res.samples = None
     W, H = built.resolution
     prog, update = progress_bar(opts.quiet, f"{opts.method} {W}x{H} {spp} spp", "pixel samples")
     with prog:
         img, layers, stats, timings = render_passes(
-            built, res.samples if res else None, side.tables, pbl, seed, spp, threads, update, time_limit,
+            built, samples, side.tables, pbl, seed, spp, threads, update, time_limit,
             bounced_cache(side.cache, res.path, pbl, side.table_names) if res else None, side.entry, first_pass)
     if opts.method == "dipole":
         layers = {k: layers.get(k, np.zeros_like(img)) for k in DIPOLE_LAYERS}

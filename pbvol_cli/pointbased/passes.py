@@ -38,15 +38,21 @@ def render_passes(built: BuiltScene, samples, tables: dict, pbl, seed: int, spp:
     """Renders spp passes of the point-based method (no pass starts after time_limit seconds). samples: the cached
     LightSamples of pass 0 (None: no medium); tables: {medium: [MSTable or None] x 3}; pbl: config.PblSettings
     (its components included); first_bounced(m, build): pass 0's bounced samples of medium m, from a cache or
-    build() (None: always built); entry: camera_pass.render_pbl's (the dipole's diffusion term); first_pass: the
+    build() (None: always built); entry: camera_pass.render_pbl's (the dipole's diffusion term); samples may come
+    as a one-item list, which is emptied: they are then dropped after pass 0 when no later pass reuses them
+    (light_sets 0), their memory freed unless the caller keeps another reference; first_pass: the
     first pass's index in the scene's sequence (render --samples; pass p's light samples are seeded by p).
     Returns (image, layers, stats, timings): render_pbl's, and the seconds spent on the later passes' light
     samples and on the bounced samples."""
     expanded = {m: kernel_tables(t) for m, t in tables.items()}
     timings = {"pass_samples_s": 0.0, "bounced_s": 0.0}
+    if isinstance(samples, list):  # [LightSamples]: taken out, so that no caller's reference keeps them alive
+        samples = samples.pop()
+    has_medium = samples is not None
 
     def media_for_pass(p: int) -> dict:
-        if samples is None:
+        nonlocal samples
+        if not has_medium:
             return {}
         current = samples
         if p > 0 and pbl.light_sets != 1 and (pbl.light_sets == 0 or p < pbl.light_sets):
@@ -56,6 +62,8 @@ def render_passes(built: BuiltScene, samples, tables: dict, pbl, seed: int, spp:
             timings["pass_samples_s"] += time.perf_counter() - t
         elif p > 0 and pbl.light_sets > 1:
             return media_for_pass(p % pbl.light_sets)
+        if p == 0 and pbl.light_sets == 0:
+            samples = None  # no later pass reads them: freed once this pass's sets are built (docs/pbl.md, memory)
         lit = {m: SampleSet(current, m, built.media, expanded[m], pbl.beam_width) for m in expanded}
         t = time.perf_counter()
         cached = first_bounced if p == 0 else None  # (pass 0's set: the cached light samples, the seed)
