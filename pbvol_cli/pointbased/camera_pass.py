@@ -6,7 +6,7 @@ refracted branch are both followed, weighted by Fresnel (F and (1 - F) (eta_i/et
 the image carries no noise from choosing between them. Each segment a path travels inside a medium gathers the
 medium's light from the light samples (gather.py). Branches of small weight evaluate the medium by Russian
 roulette. Diffuse surfaces take one shadow ray per light and continue by cosine-sampled bounces (indirect light);
-emitters and the environment seen directly or through specular chains add their radiance (see _interact_one for
+emitters and the environment seen directly or through specular chains add their radiance (see _interact_rays for
 when a shadow ray has already counted them).
 
 Light reflected by the medium's boundary after scattering (sec. 3.10) comes as a second set of volume samples per
@@ -54,22 +54,26 @@ PathLimits = namedtuple("PathLimits", ["eps", "max_split_depth", "max_diffuse", 
 
 
 # Numba pitfall: arrays unpacked from a tuple inside a parallel function lose their writes in prange (numba
-# 0.68). The parallel kernel therefore only loops and calls an inner function that takes the tuples. Its index is
-# cast to int64: prange's is uint64 in the parallel code and int64 in the serial typing, two compiled copies.
+# 0.68). The parallel kernel therefore only loops over chunks and calls an inner function that takes the tuples.
+RAY_CHUNK = 256  # rays a kernel call handles: the bundles' arrays are unpacked once per call, not per ray
+
+
 @njit(parallel=True, cache=True)
 def _interact(surfaces, lights, rays, hits, limits, emit, children, shadows):
-    for i in prange(rays.pos.shape[0]):
-        _interact_one(np.int64(i), surfaces, lights, rays, hits, limits, emit, children, shadows)
+    n = rays.pos.shape[0]
+    for c in prange((n + RAY_CHUNK - 1) // RAY_CHUNK):
+        _interact_rays(c * RAY_CHUNK, min(n, (c + 1) * RAY_CHUNK), surfaces, lights, rays, hits, limits, emit,
+                       children, shadows)
 
 
 @njit(cache=True)
-def _interact_one(i, surfaces, lights, rays, hits, limits, emit, children, shadows):
-    """Ray i's emission, then the surface it meets at hits.t[i]: up to two children (reflected: slot 2i,
-    transmitted: 2i + 1); at a diffuse surface, one shadow ray per light (slots i * n_lights + light) and, below
-    limits.max_diffuse bounces, one cosine-sampled child (slot 2i) for indirect light. rays.state[i] = 4 x (diffuse
-    bounces) + 2 x (a specular interface crossed since the last diffuse bounce): lights and the environment seen
-    directly after a diffuse bounce are already counted by the shadow rays, which stop at every surface; seen
-    through a specular chain (a caustic through the glass) they are not, and count."""
+def _interact_rays(lo, hi, surfaces, lights, rays, hits, limits, emit, children, shadows):
+    """Rays lo .. hi-1, each (ray i): its emission, then the surface it meets at hits.t[i]: up to two children
+    (reflected: slot 2i, transmitted: 2i + 1); at a diffuse surface, one shadow ray per light (slots i * n_lights
+    + light) and, below limits.max_diffuse bounces, one cosine-sampled child (slot 2i) for indirect light.
+    rays.state[i] = 4 x (diffuse bounces) + 2 x (a specular interface crossed since the last diffuse bounce):
+    lights and the environment seen directly after a diffuse bounce are already counted by the shadow rays, which
+    stop at every surface; seen through a specular chain (a caustic through the glass) they are not, and count."""
     pos, dirs, beta, medium, depth, rng, state = (rays.pos, rays.dir, rays.beta, rays.medium, rays.depth, rays.rng,
                                                   rays.state)
     t, surf, ng, ns, li = hits.t, hits.surface, hits.ng, hits.ns, hits.light
@@ -78,111 +82,113 @@ def _interact_one(i, surfaces, lights, rays, hits, limits, emit, children, shado
     sh_pos, sh_dir, sh_dist, sh_C, sh_ok = shadows.pos, shadows.dir, shadows.dist, shadows.contrib, shadows.ok
     eps = limits.eps
     nl = lights.shape[0]
-    child_ok[2 * i] = child_ok[2 * i + 1] = False
-    for lk in range(nl):
-        sh_ok[i * nl + lk] = False
-    dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
-    n_diffuse = state[i] >> 2
-    counts = n_diffuse == 0 or (state[i] & 2) != 0  # emission not already counted by a shadow ray
-    if li[i] >= 0 and not counts:
-        return
-    if li[i] >= 0:  # an area light in front of the surface
-        e = emitted_toward(lights, li[i], dx, dy, dz, pos[i, 0], pos[i, 1], pos[i, 2], t[i])
-        for c in range(3):
-            emit[i, c] += beta[i, c] * lights[li[i], LIGHT_RGB + c] * e
-        return
-    s = surf[i]
-    if s < 0 and not counts:
-        return
-    if s < 0:
-        for k in range(nl):
-            if lights[k, LIGHT_TYPE] == ENVIRONMENT:
-                for c in range(3):
-                    emit[i, c] += beta[i, c] * lights[k, LIGHT_RGB + c]
-        return
-    if depth[i] >= limits.max_split_depth:
-        return
-    hx, hy, hz = pos[i, 0] + t[i] * dx, pos[i, 1] + t[i] * dy, pos[i, 2] + t[i] * dz
-    entering, gx, gy, gz, nx, ny, nz = incident_side(dx, dy, dz, ng[i, 0], ng[i, 1], ng[i, 2], ns[i, 0], ns[i, 1],
-                                                     ns[i, 2])
-    stype = surfaces[s, SURF_TYPE]
-    if stype == DIFFUSE:
-        # direct light from every light, one sample each (the environment by cosine-weighted directions)
-        st = np.empty(1, np.uint64)
-        st[0] = rng[i]
+    st = np.empty(1, np.uint64)  # a diffuse hit's random stream, for rand
+    for i in range(lo, hi):
+        child_ok[2 * i] = child_ok[2 * i + 1] = False
         for lk in range(nl):
-            j = i * nl + lk
-            sh_ok[j] = False
-            u1, u2 = rand(st, 0), rand(st, 0)
-            if lights[lk, LIGHT_TYPE] == ENVIRONMENT:
-                wx, wy, wz = cosine_hemisphere(u1, u2, nx, ny, nz)
-                dist, Lr, Lg, Lb = np.inf, lights[lk, LIGHT_RGB], lights[lk, LIGHT_RGB + 1], lights[lk, LIGHT_RGB + 2]
-                c = wx * nx + wy * ny + wz * nz
-                f = 1.0  # (c / pi) / pdf, pdf = c / pi
-                ok = c > 0.0
-            else:
-                wx, wy, wz, dist, Lr, Lg, Lb, pdf, delta = light_sample(lights, lk, hx, hy, hz, u1, u2)
-                c = wx * nx + wy * ny + wz * nz
-                ok = pdf > 0.0 and c > 0.0
-                f = c / math.pi / pdf if ok else 0.0
-            if ok and wx * gx + wy * gy + wz * gz > 0.0:
-                sh_C[j, 0] = beta[i, 0] * surfaces[s, SURF_ALBEDO] * f * Lr
-                sh_C[j, 1] = beta[i, 1] * surfaces[s, SURF_ALBEDO + 1] * f * Lg
-                sh_C[j, 2] = beta[i, 2] * surfaces[s, SURF_ALBEDO + 2] * f * Lb
-                sh_pos[j, 0], sh_pos[j, 1], sh_pos[j, 2] = hx + eps * gx, hy + eps * gy, hz + eps * gz
-                sh_dir[j, 0], sh_dir[j, 1], sh_dir[j, 2] = wx, wy, wz
-                sh_dist[j] = shadow_ray_length(dist, eps)
-                sh_ok[j] = True
-        if n_diffuse < limits.max_diffuse:
-            j = 2 * i
-            wx, wy, wz = cosine_hemisphere(rand(st, 0), rand(st, 0), nx, ny, nz)
-            if wx * gx + wy * gy + wz * gz > 0.0:
-                child_dir[j, 0], child_dir[j, 1], child_dir[j, 2] = wx, wy, wz
-                child_pos[j, 0], child_pos[j, 1], child_pos[j, 2] = hx + eps * gx, hy + eps * gy, hz + eps * gz
-                for c in range(3):  # albedo: (albedo / pi) cos / (cos / pi)
-                    child_beta[j, c] = beta[i, c] * surfaces[s, SURF_ALBEDO + c]
-                child_med[j] = medium[i]
-                child_state[j] = (n_diffuse + 1) << 2
-                child_ok[j] = True
-        rng[i] = st[0]
-        return
-    # specular: reflected child (slot 2i) and transmitted child (slot 2i + 1)
-    eta_i = eta_t = 1.0
-    cos_i = cos_t = 1.0
-    if stype == MIRROR:
-        F, kt = 1.0, 0.0
-        rscale = (surfaces[s, SURF_ALBEDO], surfaces[s, SURF_ALBEDO + 1], surfaces[s, SURF_ALBEDO + 2])
-    else:
-        eta_i, eta_t = indices(surfaces, s, entering)
-        cos_i, F, cos_t = dielectric_fresnel(eta_i, eta_t, dx, dy, dz, nx, ny, nz)
-        if stype != DIELECTRIC:
-            F, cos_t = 0.0, cos_i
-        kt = (1.0 - F) * (eta_i / eta_t) ** 2
-        rscale = (1.0, 1.0, 1.0)
-    if F > 0.0:
-        j = 2 * i
-        wx, wy, wz = reflect(dx, dy, dz, nx, ny, nz)
-        child_dir[j, 0], child_dir[j, 1], child_dir[j, 2] = wx, wy, wz
-        child_pos[j, 0], child_pos[j, 1], child_pos[j, 2] = hx + eps * gx, hy + eps * gy, hz + eps * gz
-        for c in range(3):
-            child_beta[j, c] = beta[i, c] * F * rscale[c]
-        child_med[j] = medium[i]
-        child_state[j] = state[i] | 2
-        child_ok[j] = True
-    if kt > 0.0:
-        j = 2 * i + 1
-        if stype == NULL:
-            wx, wy, wz = dx, dy, dz
+            sh_ok[i * nl + lk] = False
+        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        n_diffuse = state[i] >> 2
+        counts = n_diffuse == 0 or (state[i] & 2) != 0  # emission not already counted by a shadow ray
+        if li[i] >= 0 and not counts:
+            continue
+        if li[i] >= 0:  # an area light in front of the surface
+            e = emitted_toward(lights, li[i], dx, dy, dz, pos[i, 0], pos[i, 1], pos[i, 2], t[i])
+            for c in range(3):
+                emit[i, c] += beta[i, c] * lights[li[i], LIGHT_RGB + c] * e
+            continue
+        s = surf[i]
+        if s < 0 and not counts:
+            continue
+        if s < 0:
+            for k in range(nl):
+                if lights[k, LIGHT_TYPE] == ENVIRONMENT:
+                    for c in range(3):
+                        emit[i, c] += beta[i, c] * lights[k, LIGHT_RGB + c]
+            continue
+        if depth[i] >= limits.max_split_depth:
+            continue
+        hx, hy, hz = pos[i, 0] + t[i] * dx, pos[i, 1] + t[i] * dy, pos[i, 2] + t[i] * dz
+        entering, gx, gy, gz, nx, ny, nz = incident_side(dx, dy, dz, ng[i, 0], ng[i, 1], ng[i, 2], ns[i, 0], ns[i, 1],
+                                                         ns[i, 2])
+        stype = surfaces[s, SURF_TYPE]
+        if stype == DIFFUSE:
+            # direct light from every light, one sample each (the environment by cosine-weighted directions)
+            st[0] = rng[i]
+            for lk in range(nl):
+                j = i * nl + lk
+                sh_ok[j] = False
+                u1, u2 = rand(st, 0), rand(st, 0)
+                if lights[lk, LIGHT_TYPE] == ENVIRONMENT:
+                    wx, wy, wz = cosine_hemisphere(u1, u2, nx, ny, nz)
+                    dist = np.inf
+                    Lr, Lg, Lb = lights[lk, LIGHT_RGB], lights[lk, LIGHT_RGB + 1], lights[lk, LIGHT_RGB + 2]
+                    c = wx * nx + wy * ny + wz * nz
+                    f = 1.0  # (c / pi) / pdf, pdf = c / pi
+                    ok = c > 0.0
+                else:
+                    wx, wy, wz, dist, Lr, Lg, Lb, pdf, delta = light_sample(lights, lk, hx, hy, hz, u1, u2)
+                    c = wx * nx + wy * ny + wz * nz
+                    ok = pdf > 0.0 and c > 0.0
+                    f = c / math.pi / pdf if ok else 0.0
+                if ok and wx * gx + wy * gy + wz * gz > 0.0:
+                    sh_C[j, 0] = beta[i, 0] * surfaces[s, SURF_ALBEDO] * f * Lr
+                    sh_C[j, 1] = beta[i, 1] * surfaces[s, SURF_ALBEDO + 1] * f * Lg
+                    sh_C[j, 2] = beta[i, 2] * surfaces[s, SURF_ALBEDO + 2] * f * Lb
+                    sh_pos[j, 0], sh_pos[j, 1], sh_pos[j, 2] = hx + eps * gx, hy + eps * gy, hz + eps * gz
+                    sh_dir[j, 0], sh_dir[j, 1], sh_dir[j, 2] = wx, wy, wz
+                    sh_dist[j] = shadow_ray_length(dist, eps)
+                    sh_ok[j] = True
+            if n_diffuse < limits.max_diffuse:
+                j = 2 * i
+                wx, wy, wz = cosine_hemisphere(rand(st, 0), rand(st, 0), nx, ny, nz)
+                if wx * gx + wy * gy + wz * gz > 0.0:
+                    child_dir[j, 0], child_dir[j, 1], child_dir[j, 2] = wx, wy, wz
+                    child_pos[j, 0], child_pos[j, 1], child_pos[j, 2] = hx + eps * gx, hy + eps * gy, hz + eps * gz
+                    for c in range(3):  # albedo: (albedo / pi) cos / (cos / pi)
+                        child_beta[j, c] = beta[i, c] * surfaces[s, SURF_ALBEDO + c]
+                    child_med[j] = medium[i]
+                    child_state[j] = (n_diffuse + 1) << 2
+                    child_ok[j] = True
+            rng[i] = st[0]
+            continue
+        # specular: reflected child (slot 2i) and transmitted child (slot 2i + 1)
+        eta_i = eta_t = 1.0
+        cos_i = cos_t = 1.0
+        if stype == MIRROR:
+            F, kt = 1.0, 0.0
+            rscale = (surfaces[s, SURF_ALBEDO], surfaces[s, SURF_ALBEDO + 1], surfaces[s, SURF_ALBEDO + 2])
         else:
-            wx, wy, wz = refract(dx, dy, dz, nx, ny, nz, eta_t / eta_i, cos_i, cos_t)
-        child_dir[j, 0], child_dir[j, 1], child_dir[j, 2] = wx, wy, wz
-        child_pos[j, 0], child_pos[j, 1], child_pos[j, 2] = hx - eps * gx, hy - eps * gy, hz - eps * gz
-        for c in range(3):
-            child_beta[j, c] = beta[i, c] * kt
-        child_med[j] = medium_beyond(surfaces, s, entering)
-        counted = limits.shadows_cross >= (1 if stype == NULL else 2)  # by the shadow rays, through s
-        child_state[j] = state[i] if counted else state[i] | 2
-        child_ok[j] = True
+            eta_i, eta_t = indices(surfaces, s, entering)
+            cos_i, F, cos_t = dielectric_fresnel(eta_i, eta_t, dx, dy, dz, nx, ny, nz)
+            if stype != DIELECTRIC:
+                F, cos_t = 0.0, cos_i
+            kt = (1.0 - F) * (eta_i / eta_t) ** 2
+            rscale = (1.0, 1.0, 1.0)
+        if F > 0.0:
+            j = 2 * i
+            wx, wy, wz = reflect(dx, dy, dz, nx, ny, nz)
+            child_dir[j, 0], child_dir[j, 1], child_dir[j, 2] = wx, wy, wz
+            child_pos[j, 0], child_pos[j, 1], child_pos[j, 2] = hx + eps * gx, hy + eps * gy, hz + eps * gz
+            for c in range(3):
+                child_beta[j, c] = beta[i, c] * F * rscale[c]
+            child_med[j] = medium[i]
+            child_state[j] = state[i] | 2
+            child_ok[j] = True
+        if kt > 0.0:
+            j = 2 * i + 1
+            if stype == NULL:
+                wx, wy, wz = dx, dy, dz
+            else:
+                wx, wy, wz = refract(dx, dy, dz, nx, ny, nz, eta_t / eta_i, cos_i, cos_t)
+            child_dir[j, 0], child_dir[j, 1], child_dir[j, 2] = wx, wy, wz
+            child_pos[j, 0], child_pos[j, 1], child_pos[j, 2] = hx - eps * gx, hy - eps * gy, hz - eps * gz
+            for c in range(3):
+                child_beta[j, c] = beta[i, c] * kt
+            child_med[j] = medium_beyond(surfaces, s, entering)
+            counted = limits.shadows_cross >= (1 if stype == NULL else 2)  # by the shadow rays, through s
+            child_state[j] = state[i] if counted else state[i] | 2
+            child_ok[j] = True
 
 
 # surface_paths = 0 (auto): the first two passes trace AUTO_FIRST_PATHS paths per pixel; from then on each pixel's
@@ -396,7 +402,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
     roulette_rng = np.random.default_rng([seed, done])
     medium = np.full(n, -1, np.int64)
     depth = np.zeros(n, np.int64)
-    state = np.zeros(n, np.int64)  # see _interact_one
+    state = np.zeros(n, np.int64)  # see _interact_rays
     n_start = np.full((n, 3), np.nan)  # the normal of the surface each ray leaves (NaN: the camera)
     limits = PathLimits(bs.eps, pbl.max_split_depth, pbl.diffuse_bounces,
                         0 if segment is None else 2 if segment.through_dielectrics else 1)
