@@ -132,7 +132,7 @@ def render_distributed(jobs: list, dask, shards: int | None = None, ship_cache: 
         with prog:
             for f in as_completed(futures):
                 j, n = futures[f]
-                parts[j].append(f.result())
+                parts[j].append(_shard_result(f, jobs[j][1], client, futures))
                 done += n
                 update(done, total)
         out = []
@@ -157,6 +157,20 @@ def render_distributed(jobs: list, dask, shards: int | None = None, ship_cache: 
             client.close()
             if cluster is not None:
                 cluster.close()
+
+
+def _shard_result(future, scene_path, client, futures):
+    """A finished shard's render.Part; a shard that failed cancels the others and raises a one-line PbvolError
+    (a worker's own PbvolError as it is, anything else named with the scene)."""
+    try:
+        return future.result()
+    except PbvolError:
+        client.cancel(list(futures))
+        raise
+    except Exception as e:  # a worker's failure arrives as the exception it raised
+        client.cancel(list(futures))
+        raise PbvolError(f"{scene_path}: a shard failed on a Dask worker: {type(e).__name__}: "
+                         f"{' '.join(str(e).split())}") from None
 
 
 def on_dask(dask, shards: int | None = None, quiet: bool = False):

@@ -137,3 +137,18 @@ def test_the_api_renders_on_dask(tmp_path, client):
     scene = pbvol.load_scene(dict(SCENE, render={"spp": 5, "seed": 2}), base_dir=tmp_path)
     one = pbvol.render(scene, threads=1)
     assert np.array_equal(pbvol.render(scene, dask=client, shards=2).image, one.image)
+
+
+def test_a_shard_that_fails_on_a_worker_is_one_line_naming_the_scene(tmp_path, client):
+    """A mesh the workers cannot read (here: removed after this process checked the scene) fails the render with
+    one line, not a traceback."""
+    mesh = tmp_path / "tri.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    path = write_scene(tmp_path, dict(SCENE, shapes=[*SCENE["shapes"], {"type": "mesh", "file": "tri.obj",
+                                                                         "interface": "diffuse"}]))
+    scene = C.load_scene(path)
+    mesh.unlink()
+    with pytest.raises(Exception) as err:
+        render_distributed([(scene, path, RenderOptions(quiet=True, spp=2))], client, quiet=True)
+    assert type(err.value).__name__ in ("PbvolError", "ConfigError") and "tri.obj" in str(err.value)
+    assert "\n" not in str(err.value)
