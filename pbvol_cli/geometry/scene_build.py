@@ -118,8 +118,9 @@ def camera_params(cam: C.Camera, resolution: tuple[int, int] | None = None) -> n
     return np.concatenate([pos, fwd, right * t * w / h, up * t, [w, h]])
 
 
-class _Media:
-    """The scene's distinct media (config.scene_media), indexed in the order the shapes first name them."""
+class SceneMedia:
+    """The scene's distinct media (config.scene_media) as MediumInfo (coefficients in scene units), indexed in the
+    order the shapes first name them: the one numbering of media, for the built tables and the Mitsuba export."""
 
     def __init__(self, scene: C.Scene, path: Path):
         self.scene, self.path = scene, path
@@ -141,7 +142,7 @@ def build_scene(scene: C.Scene, path: Path, resolution: tuple[int, int] | None =
     from pbvol_cli.geometry.primitives import shape_parts  # trimesh import deferred
 
     path = Path(path)
-    media = _Media(scene, path)
+    media = SceneMedia(scene, path)
     surfaces: list[list[float]] = []
     owner: list[int] = []
     verts, faces, tri_surf, tri_norm, spheres = [], [], [], [], []

@@ -60,6 +60,7 @@ import numpy as np
 
 from pbvol_cli import config as C
 from pbvol_cli.errors import ConfigError, PbvolError
+from pbvol_cli.geometry.scene_build import SceneMedia
 from pbvol_cli.pipeline.cache import write_bytes_atomic
 from pbvol_cli.physics.phase import KINDS, phase_eval
 
@@ -126,21 +127,18 @@ class _Export:
 
     def __init__(self, scene: C.Scene, path: Path, stem: str):
         self.scene, self.path, self.stem = scene, path, stem
-        self.media = [(label, mat, *mat.coefficients(scene.unit)) for label, mat in C.scene_media(scene, path)]
-        self.index = {C.medium_key(m[1]): k for k, m in enumerate(self.media)}
+        self.table = SceneMedia(scene, path)
+        self.media = [(m.label, m.material, m.sigma_a, m.sigma_s) for m in self.table.info]
         self.bounding: dict[int, list[np.ndarray]] = {}  # medium -> points of the surfaces with it on a side
         self.points: list[np.ndarray] = []
         self.objects: dict[str, dict] = {}  # shapes and lights, in the scene's order
         self.out = MitsubaExport({"type": "scene"})
 
     def medium(self, ref, fld: str) -> int:
-        if ref is None:
-            return -1
-        mat, _ = C.resolve_medium(ref, self.scene, self.path, fld)
-        return self.index[C.medium_key(mat)]
+        return self.table.get(ref, fld)
 
     def eta(self, k: int) -> float | None:
-        return None if k < 0 else self.media[k][1].eta
+        return self.table.eta(k)
 
     def add_points(self, pts, media=()):
         pts = np.asarray(pts, float).reshape(-1, 3)
