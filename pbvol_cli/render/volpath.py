@@ -535,20 +535,22 @@ def _run_batch(P: Paths, n: int, caster: TriangleCaster, S, misc) -> tuple[int, 
     P.status[n:] = DEAD
     P.sh_active[:] = False
     casts = steps = 0
+    active = np.arange(n)  # the paths still alive, ascending: each step scans these, not the whole batch
     while True:
-        need = np.flatnonzero(P.status[:n] == NEED_CAST)
+        status = P.status[active]
+        need = active[status == NEED_CAST]
         if len(need) and not caster.empty:
             _cast_into(caster, need, P.pos, P.dir, hits)
             casts += len(need)
         elif len(need):
             P.hit_t[need] = INF
             P.hit_prim[need] = -1
-        active = np.flatnonzero(P.status[:n] != DEAD)
+        active = active[status != DEAD]
         if len(active) == 0:
             break
         advance_paths(active, S, misc, st, sh, hits)
         steps += 1
-        sh_idx = np.flatnonzero(P.sh_active[:n])
+        sh_idx = active[P.sh_active[active]]  # (a path that left a shadow ray may have ended since)
         fresh = np.zeros(len(sh_idx), np.int8)
         while len(sh_idx):
             advance_shadows(sh_idx, fresh, S, misc, sh, hits, P.L)
