@@ -16,7 +16,7 @@ from pbvol_cli.physics.lights import intersect_lights, sphere_hit
 INF = np.inf
 
 
-@njit(cache=True)
+@njit(inline="always", cache=True)
 def closest_sphere(spheres, ox, oy, oz, dx, dy, dz, tmax):
     """Closest analytic sphere hit before tmax: (t, sphere index) or (inf, -1)."""
     best, idx = tmax, -1
@@ -28,7 +28,7 @@ def closest_sphere(spheres, ox, oy, oz, dx, dy, dz, tmax):
     return (best, idx) if idx >= 0 else (INF, -1)
 
 
-@njit(cache=True)
+@njit(inline="always", cache=True)
 def analytic_hit(spheres, lights, ox, oy, oz, dx, dy, dz, tmax, skip_light=-1):
     """Closest analytic hit: (t, kind, index) with kind 1 = sphere shape, 2 = area light, 0 = none.
 

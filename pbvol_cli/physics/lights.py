@@ -69,7 +69,7 @@ def sphere_hit(ox, oy, oz, dx, dy, dz, cx, cy, cz, rad, tmin):
     return INF, False
 
 
-@njit(cache=True)
+@njit(inline="always", cache=True)
 def intersect_lights(lights, ox, oy, oz, dx, dy, dz, tmax, skip=-1):
     """Closest area light hit before tmax, ignoring light `skip`: (t, light index) or (inf, -1)."""
     best, idx = tmax, -1

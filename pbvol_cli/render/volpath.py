@@ -225,6 +225,11 @@ def _nee(i, px, py, pz, kind, nx, ny, nz, dx, dy, dz, phase_kind, g, albedo, med
     return True
 
 
+# phase_sample inlined into the path kernel (about 15 % of a scattering event's time in a dense medium); inlined
+# everywhere, numba's array analysis rejects it in parallel kernels. Not cached itself: the kernel's cache holds it.
+phase_sample_inline = njit(inline="always")(phase_sample.py_func)
+
+
 @njit(cache=True)
 def _path_advance(active, lo, hi, S, misc, st, sh, hits):
     """Advance paths active[lo:hi] each until it needs a triangle cast, has emitted a shadow ray, or is dead."""
@@ -290,7 +295,8 @@ def _path_advance(active, lo, hi, S, misc, st, sh, hits):
                     if nee_on:
                         did_nee = _nee(i, px, py, pz, as_runtime(0), 0.0, 0.0, 0.0, dx, dy, dz, kind, g,
                                        media[m, MED_SIGMA_A:MED_SIGMA_A + 3], m, S, misc, st, sh)
-                    wx, wy, wz, pdf = phase_sample(kind, g, dx, dy, dz, rand(rng, i), rand(rng, i), rand(rng, i))
+                    wx, wy, wz, pdf = phase_sample_inline(kind, g, dx, dy, dz, rand(rng, i), rand(rng, i),
+                                                          rand(rng, i))
                     prev_pos[i, 0], prev_pos[i, 1], prev_pos[i, 2] = px, py, pz
                     prev_pdf[i] = pdf if nee_on else 0.0
                     if not _russian_roulette(misc, beta, eta_scale, depth, rng, i):
