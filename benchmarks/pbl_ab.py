@@ -7,7 +7,7 @@
 Each --set is one variant: comma-separated [render.pbl] overrides (numbers or words). Each variant renders the
 scene once per seed (each in this process after a warm-up render, so that compiling is not timed) and prints the
 mean time per render, the noise (relMSE between two seeds' images / 2: one image's variance in relMSE units, where
-the method is unbiased) and the image and layer means over the seeds: a variant that keeps the means and lowers
+the method is unbiased) and the image and layer means and noise over the seeds: a variant that keeps the means and lowers
 noise x time is the better one.
 """
 
@@ -61,21 +61,27 @@ def main():
         spath.write_bytes(tomli_w.dumps(scene).encode())
         opts = dict(method="pbl", threads=args.threads, cache_dir=args.cache, quiet=True)
         render_scene(spath, tmp / "warm.exr", RenderOptions(spp=1, resolution=(8, 8), **opts))
-        imgs, times, layers = [], [], []
+        imgs, times, layers, planes = [], [], [], []
         for seed in seeds:
             out = tmp / f"o{seed}.exr"
             s = render_scene(spath, out, RenderOptions(spp=args.spp, seed=seed, resolution=res, **opts))
             times.append(s["time_s"])
             imgs.append(read_exr(out)[0].astype(np.float64))
-            layers.append({k: float(v.astype(np.float64).mean()) for k, v in read_layers(out).items()})
+            planes.append({k: v.astype(np.float64) for k, v in read_layers(out).items()})
+            layers.append({k: float(v.mean()) for k, v in planes[-1].items()})
         mean = sum(imgs) / len(imgs)
-        # relMSE between two seeds' images (the mean as reference) halved: one image's variance
-        noise = float(np.mean([((a - b) ** 2 / ((0.5 * (a + b)) ** 2 + 0.01)).mean()
-                               for i, a in enumerate(imgs) for b in imgs[i + 1:]])) / 2
+
+        def spread(images):
+            # relMSE between two seeds' images (their mean as reference) halved: one image's variance
+            return float(np.mean([((a - b) ** 2 / ((0.5 * (a + b)) ** 2 + 0.01)).mean()
+                                  for i, a in enumerate(images) for b in images[i + 1:]])) / 2
+
+        noise = spread(imgs)
         t = float(np.mean(times))
         print(f"{path.stem} {variant or '(scene settings)'}: {t:.2f} s per render, noise {noise:.5f}, "
               f"noise x time {noise * t:.4f}, image mean {np.round(mean.mean((0, 1)), 6).tolist()}")
         print("    layer means " + ", ".join(f"{k} {np.mean([L[k] for L in layers]):.6f}" for k in layers[0]))
+        print("    layer noise " + ", ".join(f"{k} {spread([P[k] for P in planes]):.6f}" for k in planes[0]))
 
 
 if __name__ == "__main__":

@@ -373,9 +373,9 @@ class PblSettings(Strict):
                             "cell and direction bin, at a random camera point of it, and shared by the others (a blur "
                             "of about a cell): the cells' depth below the boundary, mean free paths of the densest "
                             "channel; 0: at every point")
-    cache_lateral: Num = Field(0.5, ge=0, description="the cells' width along the boundary, mean free paths (at "
-                               "least cache_cell; wider cells are cut in slices cache_cell deep below the boundary, "
-                               "where the terms change fastest)")
+    cache_lateral: Num = Field(2.0, ge=0, description="the cells' width along the boundary, mean free paths (at "
+                               "least cache_cell, at most an eighth of the medium's size; wider cells are cut in "
+                               "slices cache_cell deep below the boundary, where the terms change fastest)")
     cache_directions: Int = Field(8, ge=1, le=64, description="direction bins per cube-map face for cache_cell "
                                   "(8: about 11 degrees wide)")
     cut_size: Int = Field(8, ge=0, le=64, description="octree refinements per point for double and multiple scattering "

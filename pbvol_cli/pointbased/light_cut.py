@@ -206,7 +206,7 @@ def _cut_estimate(heap, hn, node_of, vs, med, q, rclamp, do_double, do_multiple,
         for c in range(3):
             od[c] = 0.0
             om[c] = 0.0
-        sample_terms(i, vs, med, q, rclamp, do_double, do_multiple, split, od, om)
+        sample_terms(i, vs, med, q, rclamp, do_double, do_multiple, split, rand(rng, ri), od, om)
         n += 1
         for c in range(3):
             out_d[c] += scale * od[c]
@@ -238,7 +238,7 @@ def _near_field(vs, med, q, rclamp, out_d, out_m):
             if rx * rx + ry * ry + rz * rz >= R * R:
                 continue
             n += 1
-            sample_terms(i, vs, med, q, rclamp, as_runtime(True), as_runtime(False), R, out_d, out_m)
+            sample_terms(i, vs, med, q, rclamp, as_runtime(True), as_runtime(False), R, 0.5, out_d, out_m)
     return n
 
 
@@ -289,7 +289,8 @@ def double_multiple(vs, med, q, cut_size, rclamp, do_double, do_multiple, out_d,
         if first_child[nd] < 0:  # a leaf: its samples exactly
             n_eval += end[nd] - start[nd]
             for k in range(start[nd], end[nd]):
-                sample_terms(order[k], vs, med, q, rclamp, do_double, ms_pending, split, out_d, out_m)
+                sample_terms(order[k], vs, med, q, rclamp, do_double, ms_pending, split, rand(rng, ri), out_d,
+                             out_m)
             continue
         for ch in range(first_child[nd], first_child[nd] + n_children[nd]):
             if n_free > 0:

@@ -29,10 +29,13 @@ from pbvol_cli.pointbased.volume_samples import Query, nearer_plane
 
 CacheSettings = namedtuple("CacheSettings", ["cell", "lateral", "directions", "single"])
 CacheSettings.__doc__ = """Sharing of the smooth terms: bins `cell` mean free paths (the medium's densest channel; 0:
-every point evaluates its own) deep below the boundary and `lateral` mean free paths wide, `directions` bins per
-cube-map face, and whether single scattering is shared too (the bounced light's: smooth; the lights' own single
-scattering never is)."""
+every point evaluates its own) deep below the boundary and `lateral` mean free paths wide (at most SIZE_SHARE of
+the medium's size), `directions` bins per cube-map face, and whether single scattering is shared too (the bounced
+light's: smooth; the lights' own single scattering never is)."""
 
+SIZE_SHARE = 0.125  # bins at most this share of the medium's size wide: the light's gradient across a body is
+# linear over such a width, which a box blur keeps (1 and 2 mean free paths on a sphere 4 across blurred double
+# scattering above the noise: tests/pointbased/test_radiance_cache.py)
 
 
 def cache_settings(pbl, single: bool = False) -> CacheSettings:
@@ -140,6 +143,12 @@ def representatives(group: np.ndarray, weight: np.ndarray, rng) -> np.ndarray:
     return order[pick]
 
 
+def lateral_width(cache: CacheSettings, mfp: float, vs) -> float:
+    """The bins' width along the boundary (scene units): cache.lateral mean free paths mfp, at most SIZE_SHARE of
+    the medium's size (vs.size: the volume samples' box), at least a cell deep."""
+    return max(min(cache.lateral * mfp, SIZE_SHARE * vs.size), cache.cell * mfp)
+
+
 def shared_terms(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, cache: CacheSettings, out,
                  planes, bin_rng):
     """The smooth terms of segments idx (as gather.eval_segments would add them) into out (n, 3 layers, 3),
@@ -155,7 +164,8 @@ def shared_terms(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settin
     _scattered_points(idx, pos, dirs, beta, tseg, rng, med, k2, planes, pts)
     mfp = 1.0 / float(np.max(med.sigma_a + med.sigma_s))
     depth = pts.plane[:, 3] - np.einsum("ij,ij->i", pts.plane[:, :3], pts.pos)
-    keys = bin_keys(pts.pos, pts.dir, depth, cache.lateral * mfp, cache.cell * mfp, cache.directions, bin_rng)
+    keys = bin_keys(pts.pos, pts.dir, depth, lateral_width(cache, mfp, vs), cache.cell * mfp, cache.directions,
+                    bin_rng)
     _, group = np.unique(keys, axis=0, return_inverse=True)
     reps = representatives(group.ravel(), pts.weight.sum(axis=1), bin_rng)
     group = group.ravel()

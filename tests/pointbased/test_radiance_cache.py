@@ -6,13 +6,13 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from conftest import build, camera, medium_sphere_scene, write_scene
+from conftest import SPHERE_SIGMA_A, SPHERE_SIGMA_S, build, camera, medium_sphere_scene, write_scene
 from pbvol_cli.imageio import read_layers
 from pbvol_cli.multiple_scattering.table import empty_table
 from pbvol_cli.pipeline.render import RenderOptions, render_scene
 from pbvol_cli.pointbased.gather import LAYER_DOUBLE, GatherSettings, eval_segments, segment_planes
 from pbvol_cli.pointbased.light_samples import place_light_samples
-from pbvol_cli.pointbased.radiance_cache import CacheSettings, bin_keys, representatives, shared_terms
+from pbvol_cli.pointbased.radiance_cache import CacheSettings, bin_keys, lateral_width, representatives, shared_terms
 from pbvol_cli.pointbased.volume_samples import SampleSet
 
 
@@ -54,17 +54,18 @@ def test_representatives_are_drawn_in_proportion_to_the_weights():
     assert abs(share - 0.75) < 4 * math.sqrt(0.75 * 0.25 / 4000) and not np.any(picks[:, 0] == 2)
 
 
-def _double_along_chords(sample_set, cell, lateral, runs, pool):
-    """Double scattering toward +z along 1600 chords of the test sphere (parallel rays, as a camera's), the mean of
-    `runs` independent estimates per chord and their variance: the terms shared in bins of `cell` mean free paths
-    (0: each point its own). Returns (mean, variance of the mean, evaluations per run)."""
+def _double_along_chords(sample_set, cell, lateral, runs, pool, toward=1.0):
+    """Double scattering toward toward x z (+1 or -1) along 1184 chords of the test sphere (parallel rays, as a
+    camera's), the mean of `runs` independent estimates per chord and their variance: the terms shared in bins of
+    `cell` mean free paths deep and `lateral` wide (0: each point its own). Returns (mean, variance of the mean,
+    evaluations per run)."""
     g = np.linspace(-0.85, 0.85, 40)
     x, y = (a.ravel() for a in np.meshgrid(g, g))
     inside = x * x + y * y < 0.85**2
     x, y = x[inside], y[inside]
     z = np.sqrt(1.0 - x * x - y * y)
-    pos = np.column_stack([x, y, -z])  # from the back of the sphere toward the camera at +z
-    dirs = np.tile([0.0, 0.0, 1.0], (len(x), 1))
+    pos = np.column_stack([x, y, -toward * z])  # from the far side of the sphere toward a camera at toward x z
+    dirs = np.tile([0.0, 0.0, toward], (len(x), 1))
     t = 2.0 * z
     planes = segment_planes(pos, dirs, t, pos, pos + t[:, None] * dirs)
     settings = GatherSettings(1, 8, 0.02, False, True, False, 1, 1)
@@ -107,6 +108,35 @@ def test_the_blur_of_shared_bins_stays_below_the_noise_and_a_coarse_bin_is_caugh
             if cell == 0.5:
                 assert evaluations < len(base) / 3
     assert ratios[0.5, 0.5] < 1.5 and ratios[4.0, 4.0] > 3.0, ratios
+
+
+def test_bins_two_mean_free_paths_wide_on_a_body_sixteen_across_stay_below_the_noise(tmp_path):
+    """The default width along the boundary, 2 mean free paths, is bounded by an eighth of the medium's size
+    (lateral_width): on the test sphere (4 mean free paths across) it stays about a cell, on the same sphere with a
+    medium 4x denser (17 across) it is 2 mean free paths, and there the double scattering along 1184 chords seen
+    from the lit side, 48 runs each, shared against per point, differs by what the noise predicts (bound 1.5, as
+    above) with fewer evaluations than bins of half a mean free path."""
+    scene = medium_sphere_scene()
+    medium = scene["shapes"][0]["medium"]
+    small = build(tmp_path, scene)
+    medium.update(sigma_a=(4 * SPHERE_SIGMA_A).tolist(), sigma_s=(4 * SPHERE_SIGMA_S).tolist())
+    bs = build(tmp_path, scene)
+    tabs = [empty_table().render_args()] * 3
+    mfp = 1.0 / float(np.max(4 * (SPHERE_SIGMA_A + SPHERE_SIGMA_S)))
+    wide = CacheSettings(0.5, 2.0, 8, False)
+    small_set = SampleSet(place_light_samples(small, 500, 8, 4, 8, 1), 0, small.media, tabs, 2.0)
+    assert lateral_width(wide, 4 * mfp, small_set.kernel) < 0.55 * 4 * mfp  # an eighth of 2: about a cell
+    sample_set = SampleSet(place_light_samples(bs, 4000, 8, 4, 8, 1), 0, bs.media, tabs, 2.0)
+    assert lateral_width(wide, mfp, sample_set.kernel) == 2.0 * mfp
+    with ThreadPoolExecutor(2) as pool:
+        base, base_var, _ = _double_along_chords(sample_set, 0.0, 0.0, 48, pool, toward=-1.0)
+        mean, var, evaluations = _double_along_chords(sample_set, 0.5, 2.0, 48, pool, toward=-1.0)
+        _, _, narrow = _double_along_chords(sample_set, 0.5, 0.5, 2, pool, toward=-1.0)
+    lit = base > 0.05 * base.max()
+    ratio = float(((mean - base) ** 2)[lit].mean() / (var + base_var)[lit].mean())
+    print("evaluations", evaluations, "(half a mean free path wide:", narrow, ") of", len(base),
+          "difference^2 / noise", ratio)
+    assert ratio < 1.5 and evaluations < narrow
 
 
 def _layers(tmp_path, scene, seeds):
