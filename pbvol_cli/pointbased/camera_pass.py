@@ -350,6 +350,10 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
             chosen = draw.integers(0, k)
         pixels, samples, ranks = pass_paths(k, samples_so_far)
         evm = ranks == chosen[pixels]
+        # the paths that evaluate the medium first, in batches of their own: the smooth terms are shared among the
+        # points of a batch (radiance_cache), and batches mixing them with the surface-only paths held k times fewer
+        first = np.argsort(~evm, kind="stable")
+        pixels, samples, evm = pixels[first], samples[first], evm[first]
         acc = {name: np.zeros((npix, 3)) for name in names}
         surface_sq = np.zeros((npix, 3))
         per_pass = len(pixels)
