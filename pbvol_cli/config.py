@@ -365,8 +365,9 @@ class PblSettings(Strict):
     max_layers: Int = Field(8, ge=1, le=64, description="transparent interfaces a beam may cross to reach the medium")
     beam_width: Num = Field(2.0, ge=0.5, description="single scattering's kernel radius over the beam's radius "
                               "(wider: less noise from the light samples, more blur)")
-    kmax: Int = Field(4, ge=1, le=64,
-                      description="points per camera-ray segment in a medium for single scattering (eq. 9)")
+    kmax: Int = Field(2, ge=1, le=64,
+                      description="points per camera-ray segment in a medium for single scattering (eq. 9; the "
+                      "paper's 4 cost more than their lower noise is worth: docs/pbl.md)")
     kmax_scattered: Int = Field(1, ge=1, le=64,
                                 description="points per segment for double and multiple (smooth along rays)")
     cache_cell: Num = Field(0.5, ge=0, description="double, multiple and bounced light are evaluated once per "
