@@ -7,8 +7,8 @@
 Each --set is one variant: comma-separated [render.pbl] overrides (numbers or words). Each variant renders the
 scene once per seed (each in this process after a warm-up render, so that compiling is not timed) and prints the
 mean time per render, the noise (relMSE between two seeds' images / 2: one image's variance in relMSE units, where
-the method is unbiased) and the image and layer means and noise over the seeds: a variant that keeps the means and lowers
-noise x time is the better one.
+the method is unbiased) and the image and layer means and noise over the seeds: a variant that keeps the means and
+lowers noise x time is the better one.
 """
 
 from __future__ import annotations

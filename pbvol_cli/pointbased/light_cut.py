@@ -21,7 +21,8 @@ from numba import njit
 from pbvol_cli.jit import as_runtime
 from pbvol_cli.physics.phase import INV_4PI, phase_eval
 from pbvol_cli.physics.sampling import rand
-from pbvol_cli.pointbased.octree import LEAF_WALK_STACK, next_leaf
+from pbvol_cli.pointbased.octree import (LEAF_WALK_STACK, LOBE_ALIGN, LOBE_CENTRE, LOBE_DIR, LOBE_EXT2, LOBE_POWER,
+                                         next_leaf)
 from pbvol_cli.pointbased.sources import sample_terms
 
 CUT_CAP = 4096  # nodes a cut may hold at once (a node that would overflow it is used as it is)
@@ -109,9 +110,8 @@ def _representative(nd, vs, q, kind, g, st_min, ext_min2, u):
     are found far more often than by power alone (g = 0.9: lobes 200x their mean), and no sample's weight exceeds
     twice its power-proportional one (importance alone, misjudged near P, made fireflies). Returns (sample,
     1 / its probability)."""
-    tree, v_scat = vs.tree, vs.scat
-    order, lo, hi, centre, dirsum, power = tree[0], tree[1], tree[2], tree[3], tree[4], tree[5]
-    first_child, n_children, start, end = tree[6], tree[7], tree[8], tree[9]
+    tree, v_scat, lobes = vs.tree, vs.scat, vs.lobes
+    order, first_child, n_children, start, end = tree[0], tree[6], tree[7], tree[8], tree[9]
     imp = np.empty(8)
     pws = np.empty(8)
     prob = 1.0
@@ -121,21 +121,15 @@ def _representative(nd, vs, q, kind, g, st_min, ext_min2, u):
         ptotal = 0.0
         for k in range(nc):
             ch = f0 + k
-            pw = power[ch, 0] + power[ch, 1] + power[ch, 2]
+            pw = lobes[ch, LOBE_POWER]
             pws[k] = max(pw, 0.0)
             ptotal += pws[k]
             imp[k] = 0.0
             if pw <= 0.0:
                 continue
-            sx, sy, sz = dirsum[ch, 0], dirsum[ch, 1], dirsum[ch, 2]
-            sn = math.sqrt(sx * sx + sy * sy + sz * sz)
-            if sn > 0.0:
-                dx, dy, dz, a = sx / sn, sy / sn, sz / sn, min(1.0, sn / pw)
-            else:
-                dx, dy, dz, a = 0.0, 0.0, 1.0, 0.0
-            hx, hy, hz = hi[ch, 0] - lo[ch, 0], hi[ch, 1] - lo[ch, 1], hi[ch, 2] - lo[ch, 2]
-            imp[k] = _importance(centre[ch, 0], centre[ch, 1], centre[ch, 2], dx, dy, dz, a, pw,
-                                 0.25 * (hx * hx + hy * hy + hz * hz), q, kind, g, st_min)
+            imp[k] = _importance(lobes[ch, LOBE_CENTRE], lobes[ch, LOBE_CENTRE + 1], lobes[ch, LOBE_CENTRE + 2],
+                                 lobes[ch, LOBE_DIR], lobes[ch, LOBE_DIR + 1], lobes[ch, LOBE_DIR + 2],
+                                 lobes[ch, LOBE_ALIGN], pw, lobes[ch, LOBE_EXT2], q, kind, g, st_min)
             total += imp[k]
         if not ptotal > 0.0:
             return -1, 0.0

@@ -7,6 +7,7 @@ measures how aligned they are), the RGB power sum, the range of its samples in `
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,6 +15,10 @@ from numba import njit
 
 LEAF_SIZE = 8
 LEAF_WALK_STACK = 128  # depth-first stack of next_leaf's walks (8 children a level: ample)
+# a node's row of node_lobes: its power-weighted centroid, mean direction (unit), alignment (|dirsum| / power, at most
+# 1), power (R + G + B) and squared half-diagonal of its box; what a light-cut descent reads of each child, in one
+# record (the arrays of Octree, read child by child, were one cache miss each)
+LOBE_CENTRE, LOBE_DIR, LOBE_ALIGN, LOBE_POWER, LOBE_EXT2, LOBE_COLS = 0, 3, 6, 7, 8, 9
 
 
 @dataclass
@@ -178,3 +183,27 @@ def next_leaf(tree, stack, sp, px, py, pz, margin):
                 stack[sp[0]] = ch
                 sp[0] += 1
     return -1
+
+
+@njit(cache=True)
+def node_lobes(tree):
+    """(nodes, LOBE_COLS): each node's lobe record (see LOBE_COLS) from tree (Octree.arrays()). A node without power
+    gets a zero direction and alignment."""
+    lo, hi, centre, dirsum, power = tree[1], tree[2], tree[3], tree[4], tree[5]
+    n = lo.shape[0]
+    out = np.zeros((n, LOBE_COLS))
+    for nd in range(n):
+        pw = power[nd, 0] + power[nd, 1] + power[nd, 2]
+        out[nd, LOBE_POWER] = pw
+        for c in range(3):
+            out[nd, LOBE_CENTRE + c] = centre[nd, c]
+        hx, hy, hz = hi[nd, 0] - lo[nd, 0], hi[nd, 1] - lo[nd, 1], hi[nd, 2] - lo[nd, 2]
+        out[nd, LOBE_EXT2] = 0.25 * (hx * hx + hy * hy + hz * hz)
+        sx, sy, sz = dirsum[nd, 0], dirsum[nd, 1], dirsum[nd, 2]
+        sn = math.sqrt(sx * sx + sy * sy + sz * sz)
+        if pw > 0.0 and sn > 0.0:
+            out[nd, LOBE_DIR], out[nd, LOBE_DIR + 1], out[nd, LOBE_DIR + 2] = sx / sn, sy / sn, sz / sn
+            out[nd, LOBE_ALIGN] = min(1.0, sn / pw)
+        elif pw > 0.0:
+            out[nd, LOBE_DIR + 2] = 1.0
+    return out

@@ -20,19 +20,20 @@ import numpy as np
 from numba import njit, prange
 
 from pbvol_cli.geometry.scene_build import MED_G, MED_PHASE, MED_SIGMA_A, MED_SIGMA_S
-from pbvol_cli.pointbased.octree import aggregate_octree, octree_skeleton
+from pbvol_cli.pointbased.octree import aggregate_octree, node_lobes, octree_skeleton
 
 END_EXTENSION = 3.0  # kernel radii by which segments on the boundary are continued (single scattering)
 
 # The bundles the numba kernels take (namedtuples: numba passes them by value and reads fields by name).
 VolumeSamples = namedtuple("VolumeSamples", ["tree", "start", "dir", "len", "power", "area", "centre", "scat", "rb",
-                                             "ends", "plane", "tables", "r_near", "size"], defaults=(0.0,))
+                                             "ends", "plane", "tables", "r_near", "lobes", "size"],
+                           defaults=(0.0,))
 VolumeSamples.__doc__ = """A medium's volume samples for the kernels: tree (Octree.arrays()), per-sample start (m, 3),
 dir (m, 3), len (m,), power (m, 3) at the start, area (m,) of single scattering's kernel disc, centre (m, 3), scat
 (m, 3) scattered power, rb (m,) beam radius, ends (m,) (1: starts on the boundary, 2: ends there), plane (m, PLANE_COLS)
 boundary planes; tables: the medium's three MSTable.render_args() (R, G, B); r_near: double scattering's
-near-field radius (scene units); size: the smallest side of the box around the segments (the medium's size
-along its thinnest axis, scene units; 0: unknown)."""
+near-field radius (scene units); lobes: the tree's octree.node_lobes (the light cut's descents); size: the smallest
+side of the box around the segments (the medium's size along its thinnest axis, scene units; 0: unknown)."""
 Medium = namedtuple("Medium", ["sigma_a", "sigma_s", "phase", "g"])
 Medium.__doc__ = """A homogeneous medium for the kernels: sigma_a, sigma_s (3,) in 1/scene unit, phase kind, g."""
 Query = namedtuple("Query", ["x", "y", "z", "wx", "wy", "wz", "plane"])
@@ -179,7 +180,7 @@ class SampleSet:
         self.count = len(idx)
         r_near = near_field_radius(start, dirs, length, beam_radius, (lo, hi))
         self.kernel = VolumeSamples(tree.arrays(), start, dirs, length, power, area, centre, self.scat, beam_radius,
-                                    ends, plane, tuple(tables), r_near,
+                                    ends, plane, tuple(tables), r_near, node_lobes(tree.arrays()),
                                     float(np.min(hi - lo)) if len(idx) else 0.0)
 
 

@@ -8,7 +8,7 @@ from pbvol_cli.multiple_scattering.table import TableSettings, build_table, empt
 from pbvol_cli.physics.phase import phase_eval
 from pbvol_cli.pointbased.inverse_square import attenuated_inv_r2_ball
 from pbvol_cli.pointbased.light_cut import double_multiple
-from pbvol_cli.pointbased.octree import build_octree
+from pbvol_cli.pointbased.octree import build_octree, node_lobes
 from pbvol_cli.pointbased.sources import Source, source_terms
 from pbvol_cli.pointbased.volume_samples import NO_PLANE, Medium, Query, VolumeSamples
 
@@ -46,7 +46,7 @@ def test_stochastic_light_cut_is_unbiased(spread, r_near):
     out_d, out_m = np.zeros(3), np.zeros(3)
     n_nodes = len(tree[1])
     vs = VolumeSamples(tree, start, d, length, scat, np.zeros(n), centre, scat, rb, np.zeros(n, np.int64), no_plane,
-                       tabs, r_near)
+                       tabs, r_near, node_lobes(tree))
     med, q = Medium(SIG_A, SIG_S, 1, G), Query(*P, *w, NO_PLANE)
     double_multiple(vs, med, q, n_nodes, 0.02, True, False, out_d, out_m, state, 0)
     assert out_d == pytest.approx(exact, rel=1e-9)
@@ -86,7 +86,7 @@ def test_multiple_scattering_cut_is_unbiased_with_sources_around_the_point():
     state = np.array([11], np.uint64)
     runs = np.zeros((3000, 3))
     vs = VolumeSamples(tree, centre, d, length, scat, np.zeros(n), centre, scat, rb, np.zeros(n, np.int64), no_plane,
-                       tabs, 0.0)
+                       tabs, 0.0, node_lobes(tree))
     for k in range(len(runs)):
         double_multiple(vs, med, q, 8, 0.02, False, True, np.zeros(3), runs[k], state, 0)
     mean, se = runs.mean(0), runs.std(0) / np.sqrt(len(runs))

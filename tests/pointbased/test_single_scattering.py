@@ -11,7 +11,7 @@ from pbvol_cli.imageio import read_layers
 from pbvol_cli.multiple_scattering.table import empty_table
 from pbvol_cli.physics.phase import phase_eval
 from pbvol_cli.pipeline.render import RenderOptions, render_scene
-from pbvol_cli.pointbased.octree import build_octree
+from pbvol_cli.pointbased.octree import build_octree, node_lobes
 from pbvol_cli.pointbased.single_scattering import single_scattering
 from pbvol_cli.pointbased.volume_samples import NO_PLANE, Medium, Query, VolumeSamples
 
@@ -58,7 +58,7 @@ def test_single_scattering_of_coarse_oblique_beams_under_a_flat_boundary_is_unbi
     centre = start + 0.5 * length[:, None] * d
     tree = build_octree(centre, lo, hi, np.tile(d, (n, 1)), power).arrays()
     vs = VolumeSamples(tree, start, np.tile(d, (n, 1)), length, power, area, centre, power, rb, ends, plane,
-                       (empty_table().render_args(),) * 3, 0.0)
+                       (empty_table().render_args(),) * 3, 0.0, node_lobes(tree))
     med = Medium(np.full(3, sig_t * (1 - alb)), np.full(3, sig_t * alb), 1, 0.0)
     w = np.array([0.0, 1.0, 0.0])
     for z in (0.5, 1.5):
@@ -88,7 +88,8 @@ def test_no_beam_carries_more_than_the_power_it_entered_with(grazing):
     plane = np.array([[0.0, 1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 30.0]])  # entry plane y = 0, normal +y (outward)
     tree = build_octree(start + 5 * d, start - 10.0, start + 10.0, d[None], power).arrays()
     vs = VolumeSamples(tree, start, d[None], np.full(1, 10.0), power, area, start + 5 * d, power, np.full(1, r),
-                       np.ones(1, np.int64), plane, (empty_table().render_args(),) * 3, 0.0)
+                       np.ones(1, np.int64), plane, (empty_table().render_args(),) * 3, 0.0,
+                       node_lobes(tree))
     med = Medium(np.full(3, sig_t * (1 - alb)), np.full(3, sig_t * alb), 0, 0.0)
     # grazing: 1.2 beam radii behind the start on the axis (in the continuation, t < 0); steep: on the disc, at
     # t = 0, 0.9 radii above the entry plane's side
