@@ -33,7 +33,7 @@ from pbvol_cli.physics.sampling import cosine_hemisphere, rand
 from pbvol_cli.pointbased.gather import (LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_SINGLE, eval_segments, gather_settings,
                                          segment_planes)
 from pbvol_cli.pointbased.radiance_cache import cache_settings
-from pbvol_cli.pointbased.volume_samples import medium_params, scattered_share
+from pbvol_cli.pointbased.volume_samples import PLANE_COLS, medium_params, scattered_share
 from pbvol_cli.render.camera import camera_rays_for
 from pbvol_cli.render.interfaces import dielectric_fresnel, incident_side, indices, medium_beyond, shadow_ray_length
 from pbvol_cli.render.sample_sums import SampleSums, layer_means
@@ -419,7 +419,11 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
         tev = np.minimum(t, tl)
         inside = np.flatnonzero((medium >= 0) & np.isfinite(tev))
         contrib = np.zeros((len(pos), 4, 3))
-        planes = segment_planes(pos, dirs, t, n_start, ng) if len(inside) else None
+        # the boundary planes of the segments that evaluate the medium (the kernels read no other row)
+        need = inside[evm[inside]]
+        planes = np.zeros((len(pos), PLANE_COLS)) if len(need) else None
+        if len(need):
+            planes[need] = segment_planes(pos[need], dirs[need], t[need], n_start[need], ng[need])
         for m in np.unique(medium[inside]):
             sub = inside[medium[inside] == m]
             lit, bounced = media_data.get(int(m), (None, None))
@@ -462,9 +466,10 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                 beta[sub] *= transmittance
             else:
                 beta[sub] *= np.exp(-sum(bs.medium_sigmas(m))[None, :] * tev[sub, None])
-        for c, name in zip((LAYER_SINGLE, LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_BOUNCED), COMPONENTS):
-            for ch in range(3):
-                layers[name][:, ch] += np.bincount(pixel, weights=contrib[:, c, ch], minlength=npix)
+        if len(need):  # contrib is zero where no segment evaluated the medium
+            for c, name in zip((LAYER_SINGLE, LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_BOUNCED), COMPONENTS):
+                for ch in range(3):
+                    layers[name][:, ch] += np.bincount(pixel, weights=contrib[:, c, ch], minlength=npix)
         k = len(pos)
         emit = np.zeros((k, 3))
         children = Children(np.zeros((2 * k, 3)), np.zeros((2 * k, 3)), np.zeros((2 * k, 3)),
