@@ -339,6 +339,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
             if k is None:
                 k = np.full(npix, AUTO_FIRST_PATHS, np.int64)
         ks.append(float(k.mean()))
+        media_data = None  # the last pass's sample sets freed before this pass's are built: not both at once
         media_data = media_for_pass(p)
         entry_p = entry.for_pass(p) if entry is not None else None
         segment_p = segment.for_pass(p, caster) if segment is not None else None
