@@ -339,7 +339,6 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
             if k is None:
                 k = np.full(npix, AUTO_FIRST_PATHS, np.int64)
         ks.append(float(k.mean()))
-        media_data = None  # the last pass's sample sets freed before this pass's are built: not both at once
         media_data = media_for_pass(p)
         entry_p = entry.for_pass(p) if entry is not None else None
         segment_p = segment.for_pass(p, caster) if segment is not None else None
@@ -372,6 +371,8 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         for name in names:
             sums[name].push(p, p + 1, acc[name] / k[:, None])
         stats.add(k, acc["surface"], surface_sq, sum(acc[c] for c in names if c != "surface") / k[:, None])
+        # this pass's sample sets and buffers freed before the next pass builds its own: not both at once
+        media_data = acc = surface_sq = pixels = samples = ranks = evm = first = path_surface = None
     caster.close()
     if pool is not None:
         pool.shutdown()
