@@ -55,12 +55,19 @@ from pbvol_cli.geometry.scene_build import (
     BuiltScene,
 )
 from pbvol_cli.jit import as_runtime
-from pbvol_cli.physics.fresnel import reflect
+from pbvol_cli.physics.fresnel import reflect, refract
 from pbvol_cli.physics.lights import ENVIRONMENT, LIGHT_RGB, LIGHT_TYPE, emitted_toward, light_pdf, light_sample
 from pbvol_cli.physics.phase import phase_eval, phase_sample
-from pbvol_cli.physics.sampling import cosine_hemisphere, power_heuristic, rand, seed_state
+from pbvol_cli.physics.sampling import cosine_hemisphere, mix64, power_heuristic, rand, seed_state
 from pbvol_cli.render.camera import generate_camera_rays
-from pbvol_cli.render.interfaces import dielectric_choice, incident_side, medium_beyond, shadow_ray_length
+from pbvol_cli.render.interfaces import (
+    dielectric_choice,
+    dielectric_fresnel,
+    incident_side,
+    indices,
+    medium_beyond,
+    shadow_ray_length,
+)
 from pbvol_cli.render.media import flight_weight, free_flight, segment_transmittance, tentative_collision
 from pbvol_cli.render.sample_sums import SampleSums
 
@@ -68,13 +75,19 @@ DEAD, NEED_CAST, CONTINUE = 0, 1, 2
 INF = np.inf
 
 # misc[] (path_settings) layout shared by the kernels
-M_EPS, M_MAXDEPTH, M_RRDEPTH, M_ORDERS, M_MAXORDER, M_HASMESH, M_NLIGHTS = range(7)
+M_EPS, M_MAXDEPTH, M_RRDEPTH, M_ORDERS, M_MAXORDER, M_HASMESH, M_NLIGHTS, M_SPLIT = range(8)
+
+# A split-off branch's record (Paths.sp_rec columns): where it starts and what it carries
+R_POS, R_DIR, R_BETA, R_MEDIUM, R_DEPTH, R_ETA_SCALE = 0, 3, 6, 9, 10, 11
+R_COLS = 12
+SPLIT_STREAM = np.uint64(0x9E6C63D0676A9A99)  # a branch's random stream: mix64 of its parent's state xor this
 
 # The kernels' bundles (numba reads them by field name or unpacks them in this order).
 SceneTables = namedtuple("SceneTables", ["tri_surface", "tri_normals", "spheres", "surfaces", "media", "lights",
                                          "grid_params", "grid_cells", "density"])
 PathState = namedtuple("PathState", ["pos", "dir", "beta", "L", "rng", "status", "medium", "depth", "nscat", "tpend",
                                      "prev_pos", "prev_pdf", "eta_scale", "tmaj"])
+SplitState = namedtuple("SplitState", ["count", "rec", "rng"])  # the branches a path split off, in order
 ShadowState = namedtuple("ShadowState", ["active", "pos", "dir", "tmax", "contrib", "medium", "light", "rng"])
 SHADOW_STREAM = np.uint64(0xD1B54A32D192ED03)  # a shadow ray's ratio tracking: its path's state xor this
 TriangleHits = namedtuple("TriangleHits", ["t", "prim", "u", "v", "ng"])
@@ -102,7 +115,7 @@ def orders_mask(orders: str | None) -> tuple[int, int]:
 class Paths:
     """Structure-of-arrays state of a batch of paths."""
 
-    def __init__(self, n: int):
+    def __init__(self, n: int, split_slots: int = 1):
         self.pos = np.zeros((n, 3))
         self.dir = np.zeros((n, 3))
         self.beta = np.zeros((n, 3))
@@ -118,6 +131,10 @@ class Paths:
         self.prev_pdf = np.zeros(n)  # solid-angle pdf of the last non-specular sampling; 0 = no MIS
         self.eta_scale = np.zeros(n)
         self.tmaj = np.zeros(n)  # the majorant at the pending tentative collision (tracked media)
+        # the branches a path splits off (at most one per interaction, and it splits at the first split_depth)
+        self.sp_count = np.zeros(n, np.int32)
+        self.sp_rec = np.zeros((n, max(split_slots, 1), R_COLS))
+        self.sp_rng = np.zeros((n, max(split_slots, 1)), np.uint64)
         # shadow-ray slot: one per path and step
         self.sh_active = np.zeros(n, np.bool_)
         self.sh_pos = np.zeros((n, 3))
@@ -137,6 +154,9 @@ class Paths:
     def state(self) -> PathState:
         return PathState(self.pos, self.dir, self.beta, self.L, self.rng, self.status, self.medium, self.depth,
                          self.nscat, self.tpend, self.prev_pos, self.prev_pdf, self.eta_scale, self.tmaj)
+
+    def split(self) -> SplitState:
+        return SplitState(self.sp_count, self.sp_rec, self.sp_rng)
 
     def shadow(self) -> ShadowState:
         return ShadowState(self.sh_active, self.sh_pos, self.sh_dir, self.sh_tmax, self.sh_C, self.sh_med,
@@ -225,19 +245,41 @@ def _nee(i, px, py, pz, kind, nx, ny, nz, dx, dy, dz, phase_kind, g, albedo, med
     return True
 
 
+@njit(inline="always", cache=True)
+def _split_off(i, sp, rng, px, py, pz, dx, dy, dz, b0, b1, b2, medium, depth, eta_scale):
+    """Append a branch that starts at p in direction d with throughput b to path i's split-off branches; its
+    random stream is drawn from the path's."""
+    count, rec, sp_rng = sp
+    k = count[i]
+    rand(rng, i)  # the parent's stream moves on: two branches it splits off never share a stream
+    sp_rng[i, k] = mix64(rng[i] ^ SPLIT_STREAM)
+    rec[i, k, R_POS], rec[i, k, R_POS + 1], rec[i, k, R_POS + 2] = px, py, pz
+    rec[i, k, R_DIR], rec[i, k, R_DIR + 1], rec[i, k, R_DIR + 2] = dx, dy, dz
+    rec[i, k, R_BETA], rec[i, k, R_BETA + 1], rec[i, k, R_BETA + 2] = b0, b1, b2
+    rec[i, k, R_MEDIUM], rec[i, k, R_DEPTH], rec[i, k, R_ETA_SCALE] = medium, depth, eta_scale
+    count[i] = k + 1
+
+
 # phase_sample inlined into the path kernel (about 15 % of a scattering event's time in a dense medium); inlined
 # everywhere, numba's array analysis rejects it in parallel kernels. Not cached itself: the kernel's cache holds it.
 phase_sample_inline = njit(inline="always")(phase_sample.py_func)
 
 
 @njit(cache=True)
-def _path_advance(active, lo, hi, S, misc, st, sh, hits):
-    """Advance paths active[lo:hi] each until it needs a triangle cast, has emitted a shadow ray, or is dead."""
+def _path_advance(active, lo, hi, S, misc, st, sh, hits, sp):
+    """Advance paths active[lo:hi] each until it needs a triangle cast, has emitted a shadow ray, or is dead.
+
+    Splitting: at the first misc[M_SPLIT] interactions of a path that has not scattered, a smooth dielectric's
+    reflection goes on as a branch of weight F while the path refracts with weight 1 - F (instead of one of the
+    two chosen with probability F). A light seen in or through a smooth boundary is then no longer the noisiest
+    part of the image (its mirror image on a glass: relative variance (1 - F) / F, about 24 a sample at normal
+    incidence). The branch is an ordinary path from there on."""
     tri_surface, tri_normals, spheres, surfaces, media, lights, grid_params, grid_cells, density = S
     pos, dirs, beta, L, rng, status, medium, depth, nscat, tpend, prev_pos, prev_pdf, eta_scale, tmaj = st
     hit_t, hit_prim, hit_u, hit_v, hit_ng = hits
     eps = misc[M_EPS]
     has_mesh = misc[M_HASMESH] > 0.0
+    split_depth = misc[M_SPLIT]
     nl = lights.shape[0]
     for j in range(lo, hi):
         i = active[j]
@@ -369,8 +411,28 @@ def _path_advance(active, lo, hi, S, misc, st, sh, hits):
             did_nee = False
             nee_on = False
             if stype == DIELECTRIC:
-                wx, wy, wz, refracted, eta_i, eta_t = dielectric_choice(surfaces, s, entering, dx, dy, dz, fnx, fny,
-                                                                        fnz, rand(rng, i))
+                F = 1.0
+                if nscat[i] == 0 and depth[i] <= split_depth:
+                    eta_i, eta_t = indices(surfaces, s, entering)
+                    cos_i, F, cos_t = dielectric_fresnel(eta_i, eta_t, dx, dy, dz, fnx, fny, fnz)
+                if 0.0 < F < 1.0:  # split: the reflection as a branch of weight F, the path refracts with weight 1 - F
+                    rx, ry, rz = reflect(dx, dy, dz, fnx, fny, fnz)
+                    r_out = rx * gx + ry * gy + rz * gz > 0.0
+                    roff = eps if r_out else -eps
+                    # Russian roulette sees both branches' throughput without their split weights (as without
+                    # the eta^2 factors): each branch lives as long as the chosen one would have
+                    _split_off(i, sp, rng, hx + roff * gx, hy + roff * gy, hz + roff * gz, rx, ry, rz,
+                               beta[i, 0] * F, beta[i, 1] * F, beta[i, 2] * F,
+                               medium_beyond(surfaces, s, not r_out), depth[i], eta_scale[i] / F)
+                    wx, wy, wz = refract(dx, dy, dz, fnx, fny, fnz, eta_t / eta_i, cos_i, cos_t)
+                    refracted = True
+                    beta[i, 0] *= 1.0 - F
+                    beta[i, 1] *= 1.0 - F
+                    beta[i, 2] *= 1.0 - F
+                    eta_scale[i] /= 1.0 - F
+                else:
+                    wx, wy, wz, refracted, eta_i, eta_t = dielectric_choice(surfaces, s, entering, dx, dy, dz, fnx,
+                                                                            fny, fnz, rand(rng, i))
                 if refracted:  # radiance scales by (eta_i / eta_t)^2 across the interface
                     k = (eta_i / eta_t) ** 2
                     beta[i, 0] *= k
@@ -426,10 +488,10 @@ PATH_CHUNK = 256  # paths a kernel call advances: the tuples' arrays are unpacke
 
 
 @njit(parallel=True, cache=True)
-def advance_paths(active, S, misc, st, sh, hits):
+def advance_paths(active, S, misc, st, sh, hits, sp):
     n = active.shape[0]
     for c in prange((n + PATH_CHUNK - 1) // PATH_CHUNK):
-        _path_advance(active, c * PATH_CHUNK, min(n, (c + 1) * PATH_CHUNK), S, misc, st, sh, hits)
+        _path_advance(active, c * PATH_CHUNK, min(n, (c + 1) * PATH_CHUNK), S, misc, st, sh, hits, sp)
 
 
 @njit(parallel=True, cache=True)
@@ -525,6 +587,44 @@ def _init_path(i, st):
     eta_scale[i] = 1.0
 
 
+@njit(parallel=True, cache=True)
+def load_branches(rec, rngs, S, st):
+    """Start path k of a batch as the split-off branch rec[k] (columns R_*) with random stream rngs[k]."""
+    for k in prange(rec.shape[0]):
+        _load_branch(np.int64(k), rec, rngs, S, st)
+
+
+@njit(cache=True)
+def _load_branch(i, rec, rngs, S, st):
+    media, density = S.media, S.density
+    pos, dirs, beta, L, rng, status, medium, depth, nscat, tpend, prev_pos, prev_pdf, eta_scale, tmaj = st
+    for c in range(3):
+        pos[i, c] = rec[i, R_POS + c]
+        dirs[i, c] = rec[i, R_DIR + c]
+        beta[i, c] = rec[i, R_BETA + c]
+        L[i, c] = 0.0
+    rng[i] = rngs[i]
+    status[i] = NEED_CAST
+    medium[i] = int(rec[i, R_MEDIUM])
+    depth[i] = int(rec[i, R_DEPTH])
+    nscat[i] = 0  # only unscattered paths split
+    prev_pdf[i] = 0.0  # a specular event
+    eta_scale[i] = rec[i, R_ETA_SCALE]
+    tpend[i] = INF
+    if medium[i] >= 0:
+        tpend[i] = free_flight(media, medium[i], beta, i, rng, density, pos, dirs, tmaj)
+
+
+@njit(cache=True)
+def _add_to(L, target, branch_L):
+    """L[target[k]] += branch_L[k], in the order of k (a pixel's sum does not depend on threads)."""
+    for k in range(target.shape[0]):
+        t = target[k]
+        L[t, 0] += branch_L[k, 0]
+        L[t, 1] += branch_L[k, 1]
+        L[t, 2] += branch_L[k, 2]
+
+
 # ----------------------------------------------------------------------------- driver
 
 
@@ -533,13 +633,51 @@ def _cast_into(caster: TriangleCaster, idx, origins, dirs, hits):
     hits.t[idx], hits.prim[idx], hits.u[idx], hits.v[idx], hits.ng[idx] = t, prim, u, v, ng
 
 
-def _run_batch(P: Paths, n: int, caster: TriangleCaster, S, misc) -> tuple[int, int]:
-    """Trace the first n paths of P (positions, directions and random streams set) to their end; their radiance
-    accumulates in P.L. Returns (rays cast, kernel steps)."""
-    st, sh, hits = P.state(), P.shadow(), P.hits()
-    init_paths(n, st)
+def _run_batch(P: Paths, n: int, caster: TriangleCaster, S, misc, Q: Paths | None = None) -> tuple[int, int]:
+    """Trace the first n paths of P (positions, directions and random streams set) to their end, with every
+    branch they split off (traced in Q's paths, when given); their radiance accumulates in P.L. Returns (rays cast,
+    kernel steps)."""
+    init_paths(n, P.state())
+    casts, steps = _run_wave(P, n, caster, S, misc)
+    if misc[M_SPLIT] <= 0:
+        return casts, steps
+    # The branches run generation by generation, in the order of their parents and of when each parent split them
+    # off: a pixel's terms are summed in an order that depends neither on the batch nor on the threads.
+    root, rec, rngs = _branches(P, n)
+    while len(root):
+        Q = Q if Q is not None else Paths(min(len(P.rng), BRANCH_BATCH), P.sp_rec.shape[1])
+        nxt = []
+        for a in range(0, len(root), len(Q.rng)):
+            b = min(len(root), a + len(Q.rng))
+            load_branches(rec[a:b], rngs[a:b], S, Q.state())
+            c_, s_ = _run_wave(Q, b - a, caster, S, misc)
+            casts, steps = casts + c_, steps + s_
+            _add_to(P.L, root[a:b], Q.L)
+            parent, r, g = _branches(Q, b - a)
+            nxt.append((root[a:b][parent], r, g))
+        root, rec, rngs = (np.concatenate(x) for x in zip(*nxt))
+    return casts, steps
+
+
+def _branches(P: Paths, n: int):
+    """The branches the first n paths of P split off: (index of the path, records (m, R_COLS), random streams),
+    by path and then in the order they were split off."""
+    count = P.sp_count[:n]
+    take = np.arange(P.sp_rec.shape[1])[None, :] < count[:, None]
+    return np.repeat(np.arange(n), count), P.sp_rec[:n][take], P.sp_rng[:n][take]
+
+
+BRANCH_BATCH = 1 << 17  # split-off branches traced at a time
+SPLIT_DEPTH = 3  # the default of [render.volpath] split_depth
+
+
+def _run_wave(P: Paths, n: int, caster: TriangleCaster, S, misc) -> tuple[int, int]:
+    """Trace the first n paths of P (initialised) to their end. Returns (rays cast, kernel steps); the branches
+    they split off are left in P.sp_*."""
+    st, sh, hits, sp = P.state(), P.shadow(), P.hits(), P.split()
     P.status[n:] = DEAD
     P.sh_active[:] = False
+    P.sp_count[:n] = 0
     casts = steps = 0
     active = np.arange(n)  # the paths still alive, ascending: each step scans these, not the whole batch
     while True:
@@ -554,7 +692,7 @@ def _run_batch(P: Paths, n: int, caster: TriangleCaster, S, misc) -> tuple[int, 
         active = active[status != DEAD]
         if len(active) == 0:
             break
-        advance_paths(active, S, misc, st, sh, hits)
+        advance_paths(active, S, misc, st, sh, hits, sp)
         steps += 1
         sh_idx = active[P.sh_active[active]]  # (a path that left a shadow ray may have ended since)
         fresh = np.zeros(len(sh_idx), np.int8)
@@ -569,11 +707,14 @@ def _run_batch(P: Paths, n: int, caster: TriangleCaster, S, misc) -> tuple[int, 
     return casts, steps
 
 
-def path_settings(bs: BuiltScene, max_depth: int, rr_depth: int, orders: str | None) -> np.ndarray:
+def path_settings(bs: BuiltScene, max_depth: int, rr_depth: int, orders: str | None,
+                  split_depth: int = 0) -> np.ndarray:
     """The kernels' settings (columns M_*): ray offset, maximum depth, Russian roulette's start, the scattering
-    orders kept (a bitmask over 0, 1, 2, 3+) and the highest needed, whether there are triangles, the lights."""
+    orders kept (a bitmask over 0, 1, 2, 3+) and the highest needed, whether there are triangles, the lights, and
+    how many interactions of an unscattered path split (0: none)."""
     mask, top = orders_mask(orders)
-    misc = np.zeros(7)
+    misc = np.zeros(8)
+    misc[M_SPLIT] = split_depth
     misc[M_EPS], misc[M_MAXDEPTH], misc[M_RRDEPTH] = bs.eps, max_depth, rr_depth
     misc[M_ORDERS], misc[M_MAXORDER] = mask, top
     misc[M_HASMESH] = float(len(bs.faces) > 0)
@@ -616,7 +757,7 @@ def scene_tuple(bs: BuiltScene) -> SceneTables:
 
 def render_volpath(bs: BuiltScene, spp: int, seed: int, max_depth: int, rr_depth: int, orders: str | None,
                    batch_paths: int, threads: int, time_limit: float | None = None, progress=None,
-                   first_sample: int = 0):
+                   first_sample: int = 0, split_depth: int = SPLIT_DEPTH):
     """Render samples first_sample .. first_sample + spp - 1 of every pixel; returns (image (H, W, 3) float64, spp
     actually rendered, statistics dict; stats["sums"]: their render/sample_sums.SampleSums, which merge exactly
     with other ranges').
@@ -625,13 +766,16 @@ def render_volpath(bs: BuiltScene, spp: int, seed: int, max_depth: int, rr_depth
     """
     W, H = bs.resolution
     npix = W * H
-    misc = path_settings(bs, max_depth, rr_depth, orders)
+    misc = path_settings(bs, max_depth, rr_depth, orders, split_depth)
     S = scene_tuple(bs)
     caster = TriangleCaster(bs.vertices, bs.faces, threads)
     total = npix * spp
+    if split_depth > 0:  # a batch's branches, queued by generation, take about as much memory as the batch itself
+        batch_paths = max(1024, batch_paths // 4)
     # Batches hold whole passes (all pixels, one or more samples) so a time limit leaves equal counts.
     per_batch = max(npix, (batch_paths // npix) * npix) if npix <= batch_paths else batch_paths
-    P = Paths(min(per_batch, total))
+    P = Paths(min(per_batch, total), split_depth)
+    Q = Paths(min(per_batch, BRANCH_BATCH), split_depth) if split_depth > 0 else None
     sums = SampleSums()
     current = np.zeros((npix, 3))  # the sample being filled (one path per pixel: values placed, not added)
     t0 = time.perf_counter()
@@ -642,7 +786,7 @@ def render_volpath(bs: BuiltScene, spp: int, seed: int, max_depth: int, rr_depth
     while done < total:
         n = min(per_batch, total - done)
         generate_camera_rays(bs.camera, seed, start + done, n, P.pos, P.dir, P.pixel, P.rng)
-        c_, s_ = _run_batch(P, n, caster, S, misc)
+        c_, s_ = _run_batch(P, n, caster, S, misc, Q)
         casts, steps = casts + c_, steps + s_
         k0 = 0
         while k0 < n:  # the batch's samples, or its share of them (a batch smaller than the image)
