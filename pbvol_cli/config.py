@@ -335,9 +335,9 @@ class VolpathSettings(Strict):
     """The reference path tracer (`--method volpath`)."""
 
     rr_depth: Int = Field(8, ge=0, le=MAX_DEPTH, description="bounce count from which Russian roulette applies")
-    split_depth: Int = Field(4, ge=0, le=16, description="interactions of a path that has not scattered yet at "
-                             "which it splits (a smooth boundary's reflection and refraction, a medium's passage and "
-                             "scattering both followed; 0: never)")
+    split_depth: Int = Field(3, ge=0, le=16, description="interactions of a path that has not scattered yet at "
+                             "which a smooth boundary's reflection and refraction are both followed (0: one of the two "
+                             "chosen)")
     batch_paths: Int = Field(1 << 19, ge=1024, le=1 << 24,
                              description="paths traced per wavefront batch (memory vs. overhead)")
 

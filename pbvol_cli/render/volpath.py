@@ -34,6 +34,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit, prange
 
+from pbvol_cli.config import VolpathSettings
 from pbvol_cli.geometry.distance_grid import mesh_distance_bound
 from pbvol_cli.geometry.intersect import analytic_hit, mesh_shading_normal
 from pbvol_cli.geometry.raycast import TriangleCaster
@@ -260,6 +261,30 @@ def _split_off(i, sp, rng, px, py, pz, dx, dy, dz, b0, b1, b2, medium, depth, et
     count[i] = k + 1
 
 
+@njit(inline="always", cache=True)
+def _resume_branch(i, S, st, sp):
+    """Path i's slot takes up the last branch the path split off (its radiance goes on adding to L[i]). Its split
+    branches form a stack of increasing depth, so a slot never holds more than split_depth of them."""
+    count, rec, sp_rng = sp
+    pos, dirs, beta, L, rng, status, medium, depth, nscat, tpend, prev_pos, prev_pdf, eta_scale, tmaj = st
+    k = count[i] - 1
+    count[i] = k
+    for c in range(3):
+        pos[i, c] = rec[i, k, R_POS + c]
+        dirs[i, c] = rec[i, k, R_DIR + c]
+        beta[i, c] = rec[i, k, R_BETA + c]
+    rng[i] = sp_rng[i, k]
+    status[i] = CONTINUE
+    medium[i] = int(rec[i, k, R_MEDIUM])
+    depth[i] = int(rec[i, k, R_DEPTH])
+    nscat[i] = 0  # only unscattered paths split
+    prev_pdf[i] = 0.0  # a specular event
+    eta_scale[i] = rec[i, k, R_ETA_SCALE]
+    tpend[i] = INF
+    if medium[i] >= 0:
+        tpend[i] = free_flight(S.media, medium[i], beta, i, rng, S.density, pos, dirs, tmaj)
+
+
 # phase_sample inlined into the path kernel (about 15 % of a scattering event's time in a dense medium); inlined
 # everywhere, numba's array analysis rejects it in parallel kernels. Not cached itself: the kernel's cache holds it.
 phase_sample_inline = njit(inline="always")(phase_sample.py_func)
@@ -273,7 +298,8 @@ def _path_advance(active, lo, hi, S, misc, st, sh, hits, sp):
     reflection goes on as a branch of weight F while the path refracts with weight 1 - F (instead of one of the
     two chosen with probability F). A light seen in or through a smooth boundary is then no longer the noisiest
     part of the image (its mirror image on a glass: relative variance (1 - F) / F, about 24 a sample at normal
-    incidence). The branch is an ordinary path from there on."""
+    incidence). The branch is an ordinary path from there on, traced in its parent's slot once the parent has
+    ended (last split off, first traced), its radiance added to the same L."""
     tri_surface, tri_normals, spheres, surfaces, media, lights, grid_params, grid_cells, density = S
     pos, dirs, beta, L, rng, status, medium, depth, nscat, tpend, prev_pos, prev_pdf, eta_scale, tmaj = st
     hit_t, hit_prim, hit_u, hit_v, hit_ng = hits
@@ -285,6 +311,11 @@ def _path_advance(active, lo, hi, S, misc, st, sh, hits, sp):
         i = active[j]
         fresh = status[i] == NEED_CAST
         while True:
+            if status[i] == DEAD:  # the path ended: the last branch it split off takes its slot, or the slot ends
+                if sp[0][i] == 0:
+                    break
+                _resume_branch(i, S, st, sp)
+                fresh = False
             ox, oy, oz = pos[i, 0], pos[i, 1], pos[i, 2]
             dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
             m = medium[i]
@@ -315,7 +346,7 @@ def _path_advance(active, lo, hi, S, misc, st, sh, hits, sp):
                         if not real:
                             if beta[i, 0] == 0.0 and beta[i, 1] == 0.0 and beta[i, 2] == 0.0:
                                 status[i] = DEAD
-                                break
+                                continue
                             pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
                             tpend[i] = free_flight(media, m, beta, i, rng, density, pos, dirs, tmaj)
                             if tm < INF:  # the same ray: its triangle hit is still ahead, tp nearer
@@ -329,7 +360,7 @@ def _path_advance(active, lo, hi, S, misc, st, sh, hits, sp):
                     depth[i] += 1
                     if depth[i] > misc[M_MAXDEPTH] or nscat[i] > misc[M_MAXORDER]:
                         status[i] = DEAD
-                        break
+                        continue
                     kind, g = int(media[m, MED_PHASE]), media[m, MED_G]
                     # MIS applies whenever the NEE strategy is on here, whether or not this sample contributed.
                     nee_on = media[m, MED_SEALED] == 0.0 and nl > 0
@@ -343,7 +374,7 @@ def _path_advance(active, lo, hi, S, misc, st, sh, hits, sp):
                     prev_pdf[i] = pdf if nee_on else 0.0
                     if not _russian_roulette(misc, beta, eta_scale, depth, rng, i):
                         status[i] = DEAD
-                        break
+                        continue
                     pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
                     dirs[i, 0], dirs[i, 1], dirs[i, 2] = wx, wy, wz
                     tpend[i] = free_flight(media, m, beta, i, rng, density, pos, dirs, tmaj)
@@ -363,7 +394,7 @@ def _path_advance(active, lo, hi, S, misc, st, sh, hits, sp):
                         _add_emission(L, beta, i, lights[li, LIGHT_RGB], lights[li, LIGHT_RGB + 1],
                                       lights[li, LIGHT_RGB + 2], w)
                 status[i] = DEAD
-                break
+                continue
             hx, hy, hz = ox + tsurf * dx, oy + tsurf * dy, oz + tsurf * dz
             # ---------------- area light
             if tm > ta and akind == 2:
@@ -379,7 +410,7 @@ def _path_advance(active, lo, hi, S, misc, st, sh, hits, sp):
                         _add_emission(L, beta, i, lights[aidx, LIGHT_RGB], lights[aidx, LIGHT_RGB + 1],
                                       lights[aidx, LIGHT_RGB + 2], w * e)
                 status[i] = DEAD
-                break
+                continue
             # ---------------- a surface: geometric normal (exterior side) and shading normal
             if tm <= ta:
                 s = tri_surface[prim]
@@ -407,7 +438,7 @@ def _path_advance(active, lo, hi, S, misc, st, sh, hits, sp):
             depth[i] += 1
             if depth[i] > misc[M_MAXDEPTH]:
                 status[i] = DEAD
-                break
+                continue
             did_nee = False
             nee_on = False
             if stype == DIELECTRIC:
@@ -465,13 +496,13 @@ def _path_advance(active, lo, hi, S, misc, st, sh, hits, sp):
                 medium[i] = medium_beyond(surfaces, s, not out_ext)
             elif (out_ext != entering):  # opaque surface: a direction below the surface ends the path
                 status[i] = DEAD
-                break
+                continue
             off = eps if out_ext else -eps
             pos[i, 0], pos[i, 1], pos[i, 2] = hx + off * gx, hy + off * gy, hz + off * gz
             dirs[i, 0], dirs[i, 1], dirs[i, 2] = wx, wy, wz
             if not _russian_roulette(misc, beta, eta_scale, depth, rng, i):
                 status[i] = DEAD
-                break
+                continue
             if medium[i] >= 0:
                 tpend[i] = free_flight(media, medium[i], beta, i, rng, density, pos, dirs, tmaj)
             if did_nee:
@@ -587,44 +618,6 @@ def _init_path(i, st):
     eta_scale[i] = 1.0
 
 
-@njit(parallel=True, cache=True)
-def load_branches(rec, rngs, S, st):
-    """Start path k of a batch as the split-off branch rec[k] (columns R_*) with random stream rngs[k]."""
-    for k in prange(rec.shape[0]):
-        _load_branch(np.int64(k), rec, rngs, S, st)
-
-
-@njit(cache=True)
-def _load_branch(i, rec, rngs, S, st):
-    media, density = S.media, S.density
-    pos, dirs, beta, L, rng, status, medium, depth, nscat, tpend, prev_pos, prev_pdf, eta_scale, tmaj = st
-    for c in range(3):
-        pos[i, c] = rec[i, R_POS + c]
-        dirs[i, c] = rec[i, R_DIR + c]
-        beta[i, c] = rec[i, R_BETA + c]
-        L[i, c] = 0.0
-    rng[i] = rngs[i]
-    status[i] = NEED_CAST
-    medium[i] = int(rec[i, R_MEDIUM])
-    depth[i] = int(rec[i, R_DEPTH])
-    nscat[i] = 0  # only unscattered paths split
-    prev_pdf[i] = 0.0  # a specular event
-    eta_scale[i] = rec[i, R_ETA_SCALE]
-    tpend[i] = INF
-    if medium[i] >= 0:
-        tpend[i] = free_flight(media, medium[i], beta, i, rng, density, pos, dirs, tmaj)
-
-
-@njit(cache=True)
-def _add_to(L, target, branch_L):
-    """L[target[k]] += branch_L[k], in the order of k (a pixel's sum does not depend on threads)."""
-    for k in range(target.shape[0]):
-        t = target[k]
-        L[t, 0] += branch_L[k, 0]
-        L[t, 1] += branch_L[k, 1]
-        L[t, 2] += branch_L[k, 2]
-
-
 # ----------------------------------------------------------------------------- driver
 
 
@@ -633,47 +626,10 @@ def _cast_into(caster: TriangleCaster, idx, origins, dirs, hits):
     hits.t[idx], hits.prim[idx], hits.u[idx], hits.v[idx], hits.ng[idx] = t, prim, u, v, ng
 
 
-def _run_batch(P: Paths, n: int, caster: TriangleCaster, S, misc, Q: Paths | None = None) -> tuple[int, int]:
+def _run_batch(P: Paths, n: int, caster: TriangleCaster, S, misc) -> tuple[int, int]:
     """Trace the first n paths of P (positions, directions and random streams set) to their end, with every
-    branch they split off (traced in Q's paths, when given); their radiance accumulates in P.L. Returns (rays cast,
-    kernel steps)."""
+    branch they split off; their radiance accumulates in P.L. Returns (rays cast, kernel steps)."""
     init_paths(n, P.state())
-    casts, steps = _run_wave(P, n, caster, S, misc)
-    if misc[M_SPLIT] <= 0:
-        return casts, steps
-    # The branches run generation by generation, in the order of their parents and of when each parent split them
-    # off: a pixel's terms are summed in an order that depends neither on the batch nor on the threads.
-    root, rec, rngs = _branches(P, n)
-    while len(root):
-        Q = Q if Q is not None else Paths(min(len(P.rng), BRANCH_BATCH), P.sp_rec.shape[1])
-        nxt = []
-        for a in range(0, len(root), len(Q.rng)):
-            b = min(len(root), a + len(Q.rng))
-            load_branches(rec[a:b], rngs[a:b], S, Q.state())
-            c_, s_ = _run_wave(Q, b - a, caster, S, misc)
-            casts, steps = casts + c_, steps + s_
-            _add_to(P.L, root[a:b], Q.L)
-            parent, r, g = _branches(Q, b - a)
-            nxt.append((root[a:b][parent], r, g))
-        root, rec, rngs = (np.concatenate(x) for x in zip(*nxt))
-    return casts, steps
-
-
-def _branches(P: Paths, n: int):
-    """The branches the first n paths of P split off: (index of the path, records (m, R_COLS), random streams),
-    by path and then in the order they were split off."""
-    count = P.sp_count[:n]
-    take = np.arange(P.sp_rec.shape[1])[None, :] < count[:, None]
-    return np.repeat(np.arange(n), count), P.sp_rec[:n][take], P.sp_rng[:n][take]
-
-
-BRANCH_BATCH = 1 << 17  # split-off branches traced at a time
-SPLIT_DEPTH = 3  # the default of [render.volpath] split_depth
-
-
-def _run_wave(P: Paths, n: int, caster: TriangleCaster, S, misc) -> tuple[int, int]:
-    """Trace the first n paths of P (initialised) to their end. Returns (rays cast, kernel steps); the branches
-    they split off are left in P.sp_*."""
     st, sh, hits, sp = P.state(), P.shadow(), P.hits(), P.split()
     P.status[n:] = DEAD
     P.sh_active[:] = False
@@ -705,6 +661,9 @@ def _run_wave(P: Paths, n: int, caster: TriangleCaster, S, misc) -> tuple[int, i
                 casts += len(sh_idx)
                 fresh[:] = 1
     return casts, steps
+
+
+SPLIT_DEPTH = VolpathSettings.model_fields["split_depth"].default
 
 
 def path_settings(bs: BuiltScene, max_depth: int, rr_depth: int, orders: str | None,
@@ -770,12 +729,11 @@ def render_volpath(bs: BuiltScene, spp: int, seed: int, max_depth: int, rr_depth
     S = scene_tuple(bs)
     caster = TriangleCaster(bs.vertices, bs.faces, threads)
     total = npix * spp
-    if split_depth > 0:  # a batch's branches, queued by generation, take about as much memory as the batch itself
-        batch_paths = max(1024, batch_paths // 4)
+    if split_depth > 0:  # the branches' slots take about as much memory as the rest of a path's state
+        batch_paths = max(1024, batch_paths // 2)
     # Batches hold whole passes (all pixels, one or more samples) so a time limit leaves equal counts.
     per_batch = max(npix, (batch_paths // npix) * npix) if npix <= batch_paths else batch_paths
     P = Paths(min(per_batch, total), split_depth)
-    Q = Paths(min(per_batch, BRANCH_BATCH), split_depth) if split_depth > 0 else None
     sums = SampleSums()
     current = np.zeros((npix, 3))  # the sample being filled (one path per pixel: values placed, not added)
     t0 = time.perf_counter()
@@ -786,7 +744,7 @@ def render_volpath(bs: BuiltScene, spp: int, seed: int, max_depth: int, rr_depth
     while done < total:
         n = min(per_batch, total - done)
         generate_camera_rays(bs.camera, seed, start + done, n, P.pos, P.dir, P.pixel, P.rng)
-        c_, s_ = _run_batch(P, n, caster, S, misc, Q)
+        c_, s_ = _run_batch(P, n, caster, S, misc)
         casts, steps = casts + c_, steps + s_
         k0 = 0
         while k0 < n:  # the batch's samples, or its share of them (a batch smaller than the image)
