@@ -338,6 +338,11 @@ class VolpathSettings(Strict):
     split_depth: Int = Field(3, ge=0, le=16, description="interactions of a path that has not scattered yet at "
                              "which a smooth boundary's reflection and refraction are both followed (0: one of the two "
                              "chosen)")
+    split_rule: Literal["auto", "all", "lights"] = Field(
+        "auto", description="which of those interactions split: \"lights\" only where the reflection points at a "
+        "light (its mirror image); \"all\" every one (also the light's glints inside a glass body, for a path per "
+        "branch); \"auto\": \"lights\" in scenes with triangle meshes (each branch segment a ray cast), \"all\" "
+        "in the others")
     batch_paths: Int = Field(1 << 19, ge=1024, le=1 << 24,
                              description="paths traced per wavefront batch (memory vs. overhead)")
 

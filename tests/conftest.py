@@ -46,11 +46,12 @@ def build(tmp_path: Path, scene: dict):
 
 
 def volpath(built, spp=16, seed=1, orders=None, max_depth=100000, rr_depth=8, batch=1 << 17, threads=2,
-            split_depth=None):
+            split_depth=None, split_rule="auto"):
     from pbvol_cli.render.volpath import SPLIT_DEPTH, render_volpath
 
     split = SPLIT_DEPTH if split_depth is None else split_depth
-    img, _, _ = render_volpath(built, spp, seed, max_depth, rr_depth, orders, batch, threads, split_depth=split)
+    img, _, _ = render_volpath(built, spp, seed, max_depth, rr_depth, orders, batch, threads, split_depth=split,
+                               split_rule=split_rule)
     return img
 
 

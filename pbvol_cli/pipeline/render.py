@@ -170,6 +170,7 @@ def render_loaded(scene: C.Scene, scene_path: Path, opts: RenderOptions, referen
                 img, spp_done, stats = render_volpath(
                     built, spp, seed, max_depth, rs.volpath.rr_depth, opts.orders, rs.volpath.batch_paths, threads,
                     time_limit, update, first_sample=first, split_depth=rs.volpath.split_depth,
+                    split_rule=rs.volpath.split_rule,
                 )
             if "sums" in stats:
                 stats["sums"] = {VOLPATH_SUMS: stats["sums"]}

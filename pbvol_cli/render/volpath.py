@@ -76,7 +76,7 @@ DEAD, NEED_CAST, CONTINUE = 0, 1, 2
 INF = np.inf
 
 # misc[] (path_settings) layout shared by the kernels
-M_EPS, M_MAXDEPTH, M_RRDEPTH, M_ORDERS, M_MAXORDER, M_HASMESH, M_NLIGHTS, M_SPLIT = range(8)
+M_EPS, M_MAXDEPTH, M_RRDEPTH, M_ORDERS, M_MAXORDER, M_HASMESH, M_NLIGHTS, M_SPLIT, M_SPLIT_AIM = range(9)
 
 # A split-off branch's record (Paths.sp_rec columns): where it starts and what it carries
 R_POS, R_DIR, R_BETA, R_MEDIUM, R_DEPTH, R_ETA_SCALE = 0, 3, 6, 9, 10, 11
@@ -298,8 +298,9 @@ def _path_advance(active, lo, hi, S, misc, st, sh, hits, sp):
     reflection goes on as a branch of weight F while the path refracts with weight 1 - F (instead of one of the
     two chosen with probability F). A light seen in or through a smooth boundary is then no longer the noisiest
     part of the image (its mirror image on a glass: relative variance (1 - F) / F, about 24 a sample at normal
-    incidence). The branch is an ordinary path from there on, traced in its parent's slot once the parent has
-    ended (last split off, first traced), its radiance added to the same L."""
+    incidence). With misc[M_SPLIT_AIM] only where the reflection points at a light (an analytic test that ignores
+    occluders: unbiased either way). The branch is an ordinary path from there on, traced in its parent's slot once
+    the parent has ended (last split off, first traced), its radiance added to the same L."""
     tri_surface, tri_normals, spheres, surfaces, media, lights, grid_params, grid_cells, density = S
     pos, dirs, beta, L, rng, status, medium, depth, nscat, tpend, prev_pos, prev_pdf, eta_scale, tmaj = st
     hit_t, hit_prim, hit_u, hit_v, hit_ng = hits
@@ -442,14 +443,20 @@ def _path_advance(active, lo, hi, S, misc, st, sh, hits, sp):
             did_nee = False
             nee_on = False
             if stype == DIELECTRIC:
-                F = 1.0
+                split = False
                 if nscat[i] == 0 and depth[i] <= split_depth:
                     eta_i, eta_t = indices(surfaces, s, entering)
                     cos_i, F, cos_t = dielectric_fresnel(eta_i, eta_t, dx, dy, dz, fnx, fny, fnz)
-                if 0.0 < F < 1.0:  # split: the reflection as a branch of weight F, the path refracts with weight 1 - F
-                    rx, ry, rz = reflect(dx, dy, dz, fnx, fny, fnz)
-                    r_out = rx * gx + ry * gy + rz * gz > 0.0
-                    roff = eps if r_out else -eps
+                    if 0.0 < F < 1.0:
+                        rx, ry, rz = reflect(dx, dy, dz, fnx, fny, fnz)
+                        r_out = rx * gx + ry * gy + rz * gz > 0.0
+                        roff = eps if r_out else -eps
+                        split = True
+                        if misc[M_SPLIT_AIM] > 0.0:
+                            _, ak_r, _ = analytic_hit(spheres, lights, hx + roff * gx, hy + roff * gy, hz + roff * gz,
+                                                      rx, ry, rz, INF)
+                            split = ak_r == 2
+                if split:  # the reflection as a branch of weight F, the path refracts with weight 1 - F
                     # Russian roulette sees both branches' throughput without their split weights (as without
                     # the eta^2 factors): each branch lives as long as the chosen one would have
                     _split_off(i, sp, rng, hx + roff * gx, hy + roff * gy, hz + roff * gz, rx, ry, rz,
@@ -664,16 +671,20 @@ def _run_batch(P: Paths, n: int, caster: TriangleCaster, S, misc) -> tuple[int, 
 
 
 SPLIT_DEPTH = VolpathSettings.model_fields["split_depth"].default
+SPLIT_RULE = VolpathSettings.model_fields["split_rule"].default
 
 
 def path_settings(bs: BuiltScene, max_depth: int, rr_depth: int, orders: str | None,
-                  split_depth: int = 0) -> np.ndarray:
+                  split_depth: int = 0, split_rule: str = "auto") -> np.ndarray:
     """The kernels' settings (columns M_*): ray offset, maximum depth, Russian roulette's start, the scattering
     orders kept (a bitmask over 0, 1, 2, 3+) and the highest needed, whether there are triangles, the lights, and
-    how many interactions of an unscattered path split (0: none)."""
+    how many interactions of an unscattered path split (0: none) and whether only reflections aimed at a light
+    do (split_rule: "lights", or "auto" in a scene with triangles, where every branch's segment costs a ray cast;
+    "all": every one)."""
     mask, top = orders_mask(orders)
-    misc = np.zeros(8)
+    misc = np.zeros(9)
     misc[M_SPLIT] = split_depth
+    misc[M_SPLIT_AIM] = float(split_rule == "lights" or (split_rule == "auto" and len(bs.faces) > 0))
     misc[M_EPS], misc[M_MAXDEPTH], misc[M_RRDEPTH] = bs.eps, max_depth, rr_depth
     misc[M_ORDERS], misc[M_MAXORDER] = mask, top
     misc[M_HASMESH] = float(len(bs.faces) > 0)
@@ -716,7 +727,7 @@ def scene_tuple(bs: BuiltScene) -> SceneTables:
 
 def render_volpath(bs: BuiltScene, spp: int, seed: int, max_depth: int, rr_depth: int, orders: str | None,
                    batch_paths: int, threads: int, time_limit: float | None = None, progress=None,
-                   first_sample: int = 0, split_depth: int = SPLIT_DEPTH):
+                   first_sample: int = 0, split_depth: int = SPLIT_DEPTH, split_rule: str = SPLIT_RULE):
     """Render samples first_sample .. first_sample + spp - 1 of every pixel; returns (image (H, W, 3) float64, spp
     actually rendered, statistics dict; stats["sums"]: their render/sample_sums.SampleSums, which merge exactly
     with other ranges').
@@ -725,7 +736,7 @@ def render_volpath(bs: BuiltScene, spp: int, seed: int, max_depth: int, rr_depth
     """
     W, H = bs.resolution
     npix = W * H
-    misc = path_settings(bs, max_depth, rr_depth, orders, split_depth)
+    misc = path_settings(bs, max_depth, rr_depth, orders, split_depth, split_rule)
     S = scene_tuple(bs)
     caster = TriangleCaster(bs.vertices, bs.faces, threads)
     total = npix * spp

@@ -136,12 +136,14 @@ def test_same_seed_same_image_bit_for_bit(tmp_path):
     assert np.array_equal(a, volpath(built, spp=4, seed=11, batch=1024))
 
 
-def test_splitting_at_smooth_boundaries_is_unbiased_and_quiets_a_lights_mirror_image(tmp_path):
+def test_splitting_at_smooth_boundaries_is_unbiased_and_quiets_a_lights_images(tmp_path):
     """A glass sphere of an absorbing, scattering medium under a small sphere light and a dim sky, the light's
-    mirror image on the glass in view. Following both branches at the first smooth interfaces (split_depth 3)
-    against choosing one (0): the image means agree within their standard errors over independent seeds (an
-    analytic sphere and a mesh box), and on the sphere the noise of the light's images falls by more than 4x (a
-    chosen reflection there carried 1 / F times its share)."""
+    mirror image on the glass in view. Following both branches at the first smooth interfaces (split_depth 3),
+    everywhere ("all") or only where the reflection points at the light ("lights"), against choosing one (0): the
+    image means agree within their standard errors over independent seeds (an analytic sphere and a mesh box). On
+    the sphere the noise of the light's images (a chosen reflection carried 1 / F times its share) falls by more
+    than 4x either way: on this small sphere the mirror image, which both follow, is most of it ("all" also
+    follows the glints inside)."""
     def scene(shape):
         return {"camera": camera((24, 24), position=(0.0, 0.0, 4.0), fov=35),
                 "lights": [{"type": "sphere", "center": [2.0, 2.0, 3.0], "radius": 0.15, "radiance": 200.0},
@@ -149,23 +151,27 @@ def test_splitting_at_smooth_boundaries_is_unbiased_and_quiets_a_lights_mirror_i
                 "shapes": [{**shape, "interface": "dielectric", "eta": 1.5,
                             "medium": {"albedo": [0.9, 0.6, 0.3], "mean_free_path": 0.8, "g": 0.5}}]}
 
+    modes = {"none": (0, "all"), "all": (3, "all"), "lights": (3, "lights")}
     for shape in ({"type": "sphere", "radius": 1.0}, {"type": "box", "size": [1.4, 1.4, 1.4],
                                                       "transform": {"rotate": [20, 30, 0]}}):
         built = build(tmp_path, scene(shape))
-        runs = {d: np.array([volpath(built, spp=64, seed=s, split_depth=d) for s in range(1, 7)]) for d in (0, 3)}
-        diff = runs[3].mean(axis=(0, 1, 2)) - runs[0].mean(axis=(0, 1, 2))
-        # standard errors from each pixel's spread over the seeds (pixels are independent; a light met by chance
-        # makes the spread of six image means alone an unreliable measure)
-        se = np.sqrt(sum(np.var(r, axis=0, ddof=1).sum(axis=(0, 1)) / r.shape[0] for r in runs.values())) / 576
-        assert np.all(np.abs(diff) < 4 * se), (shape["type"], diff, se)
+        runs = {m: np.array([volpath(built, spp=64, seed=s, split_depth=d, split_rule=r) for s in range(1, 7)])
+                for m, (d, r) in modes.items()}
+        for m in ("all", "lights"):
+            diff = runs[m].mean(axis=(0, 1, 2)) - runs["none"].mean(axis=(0, 1, 2))
+            # standard errors from each pixel's spread over the seeds (pixels are independent; a light met by
+            # chance makes the spread of six image means alone an unreliable measure)
+            se = np.sqrt(sum(np.var(runs[k], axis=0, ddof=1).sum(axis=(0, 1)) / 6 for k in (m, "none"))) / 576
+            assert np.all(np.abs(diff) < 4 * se), (shape["type"], m, diff, se)
         if shape["type"] != "sphere":  # (the box shows no image of the light from here)
             continue
         # the pixels of the light's images on and through the glass: where the unscattered light is bright (an
         # independent render), not where a few scattered paths met the light by chance
         direct = volpath(built, spp=64, seed=99, orders="0").sum(axis=2)
         hot = direct > 0.1 * direct.max()
-        spread = {d: np.var(runs[d], axis=0, ddof=1).sum(axis=2)[hot].sum() for d in runs}
-        assert 0 < spread[3] < 0.25 * spread[0], (shape["type"], spread)
+        spread = {m: np.var(runs[m], axis=0, ddof=1).sum(axis=2)[hot].sum() for m in runs}
+        assert 0 < spread["all"] < 0.25 * spread["none"], (shape["type"], spread)
+        assert 0 < spread["lights"] < 0.25 * spread["none"], (shape["type"], spread)
 
 
 def test_mesh_occluder_blocks_light_in_a_scene_without_media(tmp_path):
