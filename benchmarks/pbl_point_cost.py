@@ -22,14 +22,34 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 
-def main():
+def scene_samples(scene_arg: str, cache: Path):
+    """(scene file, BuiltScene at 64 x 64, its first medium's SampleSet) from the scene's cached light samples."""
     from pbvol_cli import config as C
     from pbvol_cli.geometry.scene_build import build_scene
     from pbvol_cli.pipeline.render import RenderOptions, light_side
-    from pbvol_cli.pointbased.gather import gather_settings
     from pbvol_cli.pointbased.passes import kernel_tables
+    from pbvol_cli.pointbased.volume_samples import SampleSet
+
+    path = Path(scene_arg) if scene_arg.endswith(".toml") else ROOT / "configs" / f"{scene_arg}.toml"
+    scene = C.load_scene(path)
+    bs = build_scene(scene, path, (64, 64))
+    side = light_side(scene, bs, scene.render.seed, 2, RenderOptions(method="pbl", quiet=True, cache_dir=cache),
+                      "point cost")
+    return path, scene, bs, SampleSet(side.samples.samples, 0, bs.media, kernel_tables(side.tables[0]),
+                                      scene.render.pbl.beam_width)
+
+
+def points_in_sphere(m: int, radius: float, rng):
+    """(m points uniform in the sphere of that radius about the origin, their directions from it (unit))."""
+    normal = rng.normal(size=(m, 3))
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    return normal * (radius * rng.random(m) ** (1 / 3))[:, None], normal
+
+
+def main():
+    from pbvol_cli.pointbased.gather import gather_settings
     from pbvol_cli.pointbased.radiance_cache import ScatteredPoints, _evaluate
-    from pbvol_cli.pointbased.volume_samples import SampleSet, medium_params
+    from pbvol_cli.pointbased.volume_samples import medium_params
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scene", default="oil_sphere", help="a config name in configs/ or a scene file")
@@ -38,19 +58,11 @@ def main():
     ap.add_argument("--terms", default="single,double,multiple,double+multiple")
     ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
     args = ap.parse_args()
-    path = Path(args.scene) if args.scene.endswith(".toml") else ROOT / "configs" / f"{args.scene}.toml"
-    scene = C.load_scene(path)
-    bs = build_scene(scene, path, (64, 64))
-    side = light_side(scene, bs, scene.render.seed, 2, RenderOptions(method="pbl", quiet=True, cache_dir=args.cache),
-                      "point cost")
-    sample_set = SampleSet(side.samples.samples, 0, bs.media, kernel_tables(side.tables[0]),
-                           scene.render.pbl.beam_width)
+    path, scene, bs, sample_set = scene_samples(args.scene, args.cache)
     med = medium_params(bs.media, 0)
     rng = np.random.default_rng(3)
     m = args.points
-    normal = rng.normal(size=(m, 3))
-    normal /= np.linalg.norm(normal, axis=1)[:, None]
-    pos = normal * (args.radius * rng.random(m) ** (1 / 3))[:, None]
+    pos, normal = points_in_sphere(m, args.radius, rng)
     dirs = rng.normal(size=(m, 3))
     dirs /= np.linalg.norm(dirs, axis=1)[:, None]
     plane = np.column_stack([normal, np.full(m, args.radius)])  # n . x = radius: the tangent plane above

@@ -24,6 +24,7 @@ from numba import njit
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from pbvol_cli.pointbased.octree import LEAF_WALK_STACK  # noqa: E402
 from pbvol_cli.pointbased.volume_samples import END_EXTENSION  # noqa: E402
@@ -90,11 +91,7 @@ def _timed(vs, pts, max_count, scan):
 
 
 def main():
-    from pbvol_cli import config as C
-    from pbvol_cli.geometry.scene_build import build_scene
-    from pbvol_cli.pipeline.render import RenderOptions, light_side
-    from pbvol_cli.pointbased.passes import kernel_tables
-    from pbvol_cli.pointbased.volume_samples import SampleSet
+    from pbl_point_cost import points_in_sphere, scene_samples
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scene", default="oil_sphere", help="a config name in configs/ or a scene file")
@@ -103,17 +100,9 @@ def main():
     ap.add_argument("--node-sizes", default="8,16,32,64")
     ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
     args = ap.parse_args()
-    path = Path(args.scene) if args.scene.endswith(".toml") else ROOT / "configs" / f"{args.scene}.toml"
-    scene = C.load_scene(path)
-    bs = build_scene(scene, path, (64, 64))
-    side = light_side(scene, bs, scene.render.seed, 2, RenderOptions(method="pbl", quiet=True, cache_dir=args.cache),
-                      "single scan")
-    vs = SampleSet(side.samples.samples, 0, bs.media, kernel_tables(side.tables[0]),
-                   scene.render.pbl.beam_width).kernel
-    rng = np.random.default_rng(3)
-    normal = rng.normal(size=(args.points, 3))
-    normal /= np.linalg.norm(normal, axis=1)[:, None]
-    pts = normal * (args.radius * rng.random(args.points) ** (1 / 3))[:, None]
+    path, _, _, sample_set = scene_samples(args.scene, args.cache)
+    vs = sample_set.kernel
+    pts, _ = points_in_sphere(args.points, args.radius, np.random.default_rng(3))
     leaves = int((vs.tree[6] < 0).sum())
     print(f"{path.stem}: {len(vs.len)} volume samples in {leaves} leaves, {args.points} points, one thread")
     for size in (int(s) for s in args.node_sizes.split(",")):
