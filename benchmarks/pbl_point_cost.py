@@ -39,6 +39,14 @@ def scene_samples(scene_arg: str, cache: Path):
                                       scene.render.pbl.beam_width)
 
 
+def point_args(ap, points: int):
+    """The arguments both point-cost scripts take: --scene, --points, --radius, --cache."""
+    ap.add_argument("--scene", default="oil_sphere", help="a config name in configs/ or a scene file")
+    ap.add_argument("--points", type=int, default=points)
+    ap.add_argument("--radius", type=float, default=5.0, help="the medium's sphere, scene units")
+    ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
+
+
 def points_in_sphere(m: int, radius: float, rng):
     """(m points uniform in the sphere of that radius about the origin, their directions from it (unit))."""
     normal = rng.normal(size=(m, 3))
@@ -52,11 +60,8 @@ def main():
     from pbvol_cli.pointbased.volume_samples import medium_params
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--scene", default="oil_sphere", help="a config name in configs/ or a scene file")
-    ap.add_argument("--points", type=int, default=3000)
-    ap.add_argument("--radius", type=float, default=5.0, help="the medium's sphere, scene units")
+    point_args(ap, 3000)
     ap.add_argument("--terms", default="single,double,multiple,double+multiple")
-    ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
     args = ap.parse_args()
     path, scene, bs, sample_set = scene_samples(args.scene, args.cache)
     med = medium_params(bs.media, 0)

@@ -91,14 +91,11 @@ def _timed(vs, pts, max_count, scan):
 
 
 def main():
-    from pbl_point_cost import points_in_sphere, scene_samples
+    from pbl_point_cost import point_args, points_in_sphere, scene_samples
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--scene", default="oil_sphere", help="a config name in configs/ or a scene file")
-    ap.add_argument("--points", type=int, default=5000)
-    ap.add_argument("--radius", type=float, default=5.0, help="the medium's sphere, scene units")
+    point_args(ap, 5000)
     ap.add_argument("--node-sizes", default="8,16,32,64")
-    ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
     args = ap.parse_args()
     path, _, _, sample_set = scene_samples(args.scene, args.cache)
     vs = sample_set.kernel
