@@ -108,7 +108,29 @@ def eval_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, setti
     shared_terms(pool, threads, direct, pos, dirs, beta, tseg, rng, med, vs, settings, cache, out, planes, bin_rng)
 
 
+def _spread_bits(v):
+    """10-bit integers -> their bits spaced three apart (one axis of a Morton code)."""
+    v = v.astype(np.uint64) & np.uint64(0x3FF)
+    for shift, mask in ((16, 0xFF0000FF), (8, 0x0F00F00F), (4, 0xC30C30C3), (2, 0x49249249)):
+        v = (v | (v << np.uint64(shift))) & np.uint64(mask)
+    return v
+
+
+def spatial_order(idx, pos, dirs, tseg):
+    """idx reordered along a Morton curve through its segments' midpoints (a 1024^3 grid over their box): points
+    near in space are evaluated one after another, so the octree's nodes and samples they read stay in cache. Each
+    ray's terms are its own, so the order changes no value."""
+    if len(idx) < 2:
+        return idx
+    mid = pos[idx] + 0.5 * np.where(np.isfinite(tseg[idx]), tseg[idx], 0.0)[:, None] * dirs[idx]
+    lo, hi = mid.min(axis=0), mid.max(axis=0)
+    q = ((mid - lo) / np.maximum(hi - lo, 1e-30) * 1023.0).astype(np.int64)
+    code = _spread_bits(q[:, 0]) | (_spread_bits(q[:, 1]) << np.uint64(1)) | (_spread_bits(q[:, 2]) << np.uint64(2))
+    return idx[np.argsort(code, kind="stable")]
+
+
 def _on_threads(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes):
+    idx = spatial_order(idx, pos, dirs, tseg)
     if threads <= 1 or len(idx) < 64:
         _eval_segments(np.ascontiguousarray(idx), pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes)
         return

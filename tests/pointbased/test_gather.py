@@ -1,9 +1,9 @@
-"""The gather along ray segments in a medium: the segments' boundary planes."""
+"""The gather along ray segments in a medium: the segments' boundary planes, the order rays are evaluated in."""
 
 import numpy as np
 import pytest
 
-from pbvol_cli.pointbased.gather import segment_planes
+from pbvol_cli.pointbased.gather import segment_planes, spatial_order
 
 
 def test_segment_planes_face_out_of_the_segment_on_either_side():
@@ -22,3 +22,25 @@ def test_segment_planes_face_out_of_the_segment_on_either_side():
     for row, p0, p1 in ((0, pos[0], pos[0] + 2 * d[0]), (1, pos[1], pos[1] + d[1])):  # inside: n . x <= q
         assert pl[row, :3] @ (p0 + 0.5 * (p1 - p0)) < pl[row, 3] and pl[row, 4:7] @ (p0 + 0.5 * (p1 - p0)) < pl[row, 7]
     assert pl[2, 3] == np.inf and pl[2, 7] == np.inf
+
+
+def test_spatial_order_is_a_permutation_that_keeps_neighbours_together():
+    """Rays are evaluated along a Morton curve through their segments' midpoints: every ray once, and the midpoints
+    of consecutive rays much closer than in the given (random) order; an infinite segment (a ray that leaves) counts
+    from its start."""
+    rng = np.random.default_rng(5)
+    n = 4000
+    pos, dirs = rng.uniform(-5.0, 5.0, (n, 3)), rng.normal(size=(n, 3))
+    dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+    t = rng.uniform(0.0, 2.0, n)
+    t[::50] = np.inf
+    idx = rng.permutation(n)[: n // 2]
+    out = spatial_order(idx, pos, dirs, t)
+    assert sorted(out.tolist()) == sorted(idx.tolist())
+    mid = pos + np.where(np.isfinite(t), t, 0.0)[:, None] * dirs * 0.5
+
+    def mean_step(order):
+        return np.linalg.norm(np.diff(mid[order], axis=0), axis=1).mean()
+
+    assert mean_step(out) < 0.25 * mean_step(idx)
+    assert spatial_order(idx[:1], pos, dirs, t).tolist() == idx[:1].tolist()
