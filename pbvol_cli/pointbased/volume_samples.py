@@ -13,6 +13,7 @@ its beam entered and leaves (PLANE_* columns of beams.py). Prepared here (Sample
 
 from __future__ import annotations
 
+import math
 from collections import namedtuple
 from types import SimpleNamespace
 
@@ -50,6 +51,8 @@ SAMPLE_KEYS = ("v_start", "v_dir", "v_len", "v_power", "v_area", "v_medium", "v_
 
 NEAR_FIELD_RADII = 3.0  # double scattering's near field (summed exactly): at most this many median beam radii,
 NEAR_FIELD_COUNT = 16.0  # and holding about this many segments (dense samples would make it costly)
+NEAR_FIELD_MIN_OPTICAL = 0.1  # no near field where R sigma_t is below this: sources within R of P then give about
+# R sigma_t of double scattering, which the cut draws at the same noise, for 10-20 % less time a pass (docs/pbl.md)
 
 
 @njit(inline="always", cache=True)
@@ -69,11 +72,14 @@ def medium_params(media: np.ndarray, m: int) -> Medium:
                   float(row[MED_G]))
 
 
-def near_field_radius(start, dirs, length, rb, ends_box=None) -> float:
+def near_field_radius(start, dirs, length, rb, ends_box=None, sigma_t_max: float = math.inf) -> float:
     """Radius R of double scattering's exactly summed near field (light_cut.double_multiple): NEAR_FIELD_RADII
     median beam radii, smaller where the segments are so dense that more than NEAR_FIELD_COUNT would pass within R
     of a point (segments per volume n, median length l: n (pi R^2 l + 4/3 pi R^3), the volume within R of a
-    segment; the volume is the samples' bounding box, an over-estimate; ends_box: that box, if known)."""
+    segment; the volume is the samples' bounding box, an over-estimate; ends_box: that box, if known). 0 (no near
+    field) where R is under NEAR_FIELD_MIN_OPTICAL mean free paths of the densest channel (sigma_t_max, 1/scene
+    units): in a medium of even source density the shell at distance r gives double scattering in proportion to
+    e^(-sigma_t r) dr, so the near field's share is about R sigma_t."""
     if len(length) == 0:
         return 0.0
     if ends_box is None:  # (lo, hi) of the segments' ends, when the caller has not found it already
@@ -83,7 +89,8 @@ def near_field_radius(start, dirs, length, rb, ends_box=None) -> float:
     n, ell = len(length) / volume, float(np.median(length))
     roots = np.roots([4.0 / 3.0 * np.pi * n, np.pi * n * ell, 0.0, -NEAR_FIELD_COUNT])
     r_count = float(max(r.real for r in roots if abs(r.imag) < 1e-9 * max(1.0, abs(r)) and r.real > 0))
-    return min(NEAR_FIELD_RADII * float(np.median(rb)), r_count)
+    r = min(NEAR_FIELD_RADII * float(np.median(rb)), r_count)
+    return r if r * sigma_t_max >= NEAR_FIELD_MIN_OPTICAL else 0.0
 
 
 def returned_samples(samples, medium: int, area_scale: float = 1.0) -> SimpleNamespace:
@@ -178,7 +185,7 @@ class SampleSet:
         skeleton.order = np.arange(len(idx), dtype=np.int64)
         tree = aggregate_octree(skeleton, centre, box_lo, box_hi, dirs, self.scat)
         self.count = len(idx)
-        r_near = near_field_radius(start, dirs, length, beam_radius, (lo, hi))
+        r_near = near_field_radius(start, dirs, length, beam_radius, (lo, hi), float(np.max(st)))
         self.kernel = VolumeSamples(tree.arrays(), start, dirs, length, power, area, centre, self.scat, beam_radius,
                                     ends, plane, tuple(tables), r_near, node_lobes(tree.arrays()),
                                     float(np.min(hi - lo)) if len(idx) else 0.0)
