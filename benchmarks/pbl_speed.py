@@ -4,6 +4,7 @@
     .venv/bin/python benchmarks/pbl_speed.py [--scenes oil_sphere,wax_sphere,wine_glass] [--resolution 256]
         [--pbl-spp 1,2,4,8] [--volpath-spp 16,64,256,1024] [--ref-spp 16384] [--target 1e-3] [--memory-check]
         [--out bench-out] [--threads 2] [--cache DIR]
+        [--mitsuba PYTHON --mitsuba-spp 64,256,1024 --mitsuba-integrators volpath,volpathmis]
 
 For each scene, every render in its own process (each warms numba's cache at 8x8 first, so that compiling is not
 timed; peak memory is per process):
@@ -13,7 +14,11 @@ timed; peak memory is per process):
   3. error against time: pbl at each --pbl-spp, volpath at each --volpath-spp: (seconds, relMSE) per render, and
      the time each method needs to reach --target (log-log interpolation between renders; volpath beyond its last
      render extrapolated as relMSE ~ 1/spp, pbl not extrapolated: it is biased);
-  4. with --memory-check, pbl's peak memory at 512 x 512, 1 spp.
+  4. with --memory-check, pbl's peak memory at 512 x 512, 1 spp;
+  5. with --mitsuba (the python of a venv with mitsuba installed), Mitsuba 3's error against time for each of
+     --mitsuba-integrators on the scene as `pbvol export-mitsuba` writes it (benchmarks/mitsuba_reference.py, its
+     JIT warm-up not timed), against the same reference, and pbl's speed-up to --target over the best of them
+     (extrapolated like volpath's).
 Writes <out>/pbl_speed.md (the table), <out>/pbl_speed.json and, where matplotlib is installed
 (`pip install matplotlib`), <out>/pbl_speed_<scene>.png, the error-against-time curves.
 """
@@ -65,6 +70,10 @@ def main():
     ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
     ap.add_argument("--out", type=Path, default=ROOT / "bench-out")
     ap.add_argument("--memory-check", action="store_true")
+    ap.add_argument("--mitsuba", help="python of a venv with mitsuba installed: add Mitsuba 3's curves")
+    ap.add_argument("--mitsuba-spp", default="64,256,1024")
+    ap.add_argument("--mitsuba-integrators", default="volpath,volpathmis")
+    ap.add_argument("--mitsuba-variant", default="llvm_ad_rgb")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     res = f"{args.resolution}x{args.resolution}"
@@ -78,6 +87,8 @@ def main():
                 pts.append((s["time_s"], max(rel_mse(img, ref) - ref_noise, 1e-12), spp, s["peak_memory_mb"]))
                 print(f"{name} {method} {spp} spp: {s['time_s']:.2f} s, relMSE {pts[-1][1]:.5f}", flush=True)
             curves[method] = pts
+        if args.mitsuba:
+            curves.update(mitsuba_curves(args, name, scene, ref, ref_noise))
         t_pass = next(p[0] for p in curves["pbl"] if p[2] == 1) if any(p[2] == 1 for p in curves["pbl"]) else None
         t_vp16 = next((p[0] for p in curves["volpath"] if p[2] == 16), None)
         tp = time_to([p[:2] for p in curves["pbl"]], args.target, extrapolate=False)
@@ -87,6 +98,12 @@ def main():
                "pass_over_volpath16": t_pass / t_vp16 if t_pass and t_vp16 else None,
                "pbl_to_target_s": tp, "volpath_to_target_s": tv,
                "speed_up_at_target": tv / tp if tp and tv else None}
+        mitsuba = {k: time_to([p[:2] for p in v], args.target, extrapolate=True) for k, v in curves.items()
+                   if k.startswith("mitsuba")}
+        if mitsuba:
+            best = min(mitsuba, key=lambda k: mitsuba[k] or math.inf)
+            row.update(mitsuba_best=best, mitsuba_to_target_s=mitsuba[best],
+                       speed_up_over_mitsuba=mitsuba[best] / tp if tp and mitsuba[best] else None)
         if args.memory_check:
             s, _ = render(scene, "pbl", 1, 1, "512x512", args.threads, args.cache, args.out / f"{name}_512.exr")
             row["pbl_512_peak_mb"] = s["peak_memory_mb"]
@@ -94,17 +111,40 @@ def main():
         _plot(args.out / f"pbl_speed_{name}.png", name, curves, args.target)
     (args.out / "pbl_speed.json").write_text(json.dumps(rows, indent=1))
     lines = [f"| scene | pass s | volpath 16 spp s | pass / volpath 16 | pbl s to {args.target:g} | "
-             f"volpath s to {args.target:g} | speed-up | pbl 512² MiB |", "|---|---|---|---|---|---|---|---|"]
+             f"volpath s to {args.target:g} | speed-up | pbl 512² MiB | Mitsuba's best s to {args.target:g} | "
+             "pbl's speed-up over it |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         def f(v, fmt="{:.2f}"):
             return fmt.format(v) if v is not None else "—"
         lines.append(f"| {r['scene']} | {f(r['pass_s'])} | {f(r['volpath16_s'])} "
                      f"| {f(r['pass_over_volpath16'], '{:.1f}×')} | {f(r['pbl_to_target_s'], '{:.1f}')} "
                      f"| {f(r['volpath_to_target_s'], '{:.1f}')} "
-                     f"| {f(r['speed_up_at_target'], '{:.1f}×')} | {f(r.get('pbl_512_peak_mb'), '{:.0f}')} |")
+                     f"| {f(r['speed_up_at_target'], '{:.1f}×')} | {f(r.get('pbl_512_peak_mb'), '{:.0f}')} "
+                     f"| {f(r.get('mitsuba_to_target_s'), '{:.1f}')} {r.get('mitsuba_best', '')} "
+                     f"| {f(r.get('speed_up_over_mitsuba'), '{:.1f}×')} |")
     table = "\n".join(lines)
     (args.out / "pbl_speed.md").write_text(table + "\n")
     print(table)
+
+
+def mitsuba_curves(args, name: str, scene: Path, ref, ref_noise: float) -> dict:
+    """{"mitsuba <integrator>": [(seconds, relMSE against ref less its noise, spp, 0.0)]} at args.mitsuba_spp."""
+    from pbvol_cli.imageio import read_exr
+    from pbvol_cli.pipeline.export_mitsuba import export_mitsuba
+    from volpath_mitsuba import mitsuba_render
+
+    scene_json = args.out / f"{name}_mitsuba.json"
+    export_mitsuba(scene, scene_json, resolution=(args.resolution, args.resolution))
+    curves = {}
+    for integ in args.mitsuba_integrators.split(","):
+        pts = []
+        for spp in (int(v) for v in args.mitsuba_spp.split(",")):
+            out = args.out / f"{name}_mitsuba_{integ}.exr"
+            m = mitsuba_render(args.mitsuba, scene_json, out, spp, 1, args.threads, args.mitsuba_variant, integ)
+            pts.append((m["time_s"], max(rel_mse(read_exr(out)[0].astype(float), ref) - ref_noise, 1e-12), spp, 0.0))
+            print(f"{name} mitsuba {integ} {spp} spp: {m['time_s']:.2f} s, relMSE {pts[-1][1]:.5f}", flush=True)
+        curves[f"mitsuba {integ}"] = pts
+    return curves
 
 
 def _plot(path: Path, name: str, curves: dict, target: float):
