@@ -398,8 +398,11 @@ class PblSettings(Strict):
     kmax_diffuse: Int = Field(1, ge=1, le=64, description="random points per medium segment after a diffuse bounce")
     light_sets: Int = Field(0, ge=0, le=4096, description="independent light-sample sets the spp passes cycle through "
                             "(0: a new set every pass; 1: the cached set only)")
-    roulette: Num = Field(0.1, ge=0, description="camera branches of weight below this evaluate the medium "
-                            "with probability weight / roulette (0: always)")
+    roulette: Num = Field(0.1, ge=0, description="camera branches of weight below this evaluate the medium's "
+                          "smooth terms (double, multiple, bounced; in a ray-marched medium every term) with "
+                          "probability weight / roulette (0: always)")
+    roulette_single: Num = Field(0.02, ge=0, description="camera branches of weight below this evaluate single "
+                                 "scattering with probability weight / roulette_single (0: always)")
     surface_paths: Int = Field(0, ge=0, le=4096, description="camera paths per pixel and pass: the surfaces (path "
                                "traced, cheap) take them all, the medium one of them chosen at random (weighted: "
                                "unbiased); 0: auto, 8 for the first two passes, then per pass from the surfaces' and "

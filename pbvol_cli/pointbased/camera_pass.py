@@ -391,6 +391,18 @@ def first_path_indices(surface_paths: int, first_pass: int, npix: int) -> tuple[
     return first_pass * npix * k, first_pass * k
 
 
+def _roulette(ms, beta, kpaths, u, threshold: float):
+    """The paths of ms that evaluate a term, those of weight beta_max below `threshold` with probability
+    beta_max / threshold (u: a uniform number per path), and the weights they evaluate it with (beta divided by
+    that probability, times the pixel's path count kpaths): unbiased."""
+    q = np.minimum(1.0, beta[ms].max(axis=1) / max(threshold, 1e-300))
+    keep = u < q
+    ev = ms[keep]
+    weight = beta.copy()
+    weight[ev] /= (q[keep] / kpaths[ev])[:, None]
+    return ev, weight
+
+
 def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samples, evm, kpaths, npix, settings,
                  settings_b, pbl, layers, entry=None, segment=None):
     """Camera paths (sample samples[i] of pixel pixels[i]; `done` paths traced before them in this render), traced to
@@ -433,14 +445,19 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
             med = medium_params(bs.media, int(m))
             if lit is not None and lit.count and len(ms):
                 # weak branches (internal reflections) are evaluated with probability beta_max / roulette,
-                # their weight divided by it: unbiased, and most of the cost was in branches of weight < 0.01
-                q = np.minimum(1.0, beta[ms].max(axis=1) / max(pbl.roulette, 1e-300))
-                keep = roulette_rng.random(len(ms)) < q
-                ev = ms[keep]
-                beta_ev = beta.copy()
-                beta_ev[ev] /= (q[keep] / kpaths[ev])[:, None]
-                eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, med, lit.kernel, settings, contrib,
-                              state >> 2, planes, cache, roulette_rng)
+                # their weight divided by it: unbiased, and most of the cost was in branches of weight < 0.01.
+                # Single scattering has a threshold of its own: a branch's single scattering costs a few point
+                # evaluations, its smooth terms may cost a bin's light cut (docs/pbl.md, camera paths)
+                u = roulette_rng.random(len(ms))
+                ev, beta_ev = _roulette(ms, beta, kpaths, u, pbl.roulette)
+                if settings.single:
+                    ev_s, beta_s = _roulette(ms, beta, kpaths, u, pbl.roulette_single)
+                    eval_segments(pool, threads, ev_s, pos, dirs, beta_s, tev, rng, med, lit.kernel,
+                                  settings._replace(double=False, multiple=False), contrib, state >> 2, planes, cache,
+                                  roulette_rng)
+                if settings.double or settings.multiple:
+                    eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, med, lit.kernel,
+                                  settings._replace(single=False), contrib, state >> 2, planes, cache, roulette_rng)
                 if bounced is not None and bounced.count:
                     qb = min(1.0, scattered_share(lit, bounced) / BOUNCED_ROULETTE)
                     evb = ev[roulette_rng.random(len(ev)) < qb]
