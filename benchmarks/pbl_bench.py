@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """Benchmark of the point-based method against the reference path tracer, per example scene.
 
-    .venv/bin/python benchmarks/pbl_bench.py [--scenes a,b] [--resolution 96] [--pbl-spp 4[,16]] [--pbl-seeds 1[,2,..]] [--volpath-spp 16]
-                                            [--ref-spp 2048] [--ref-spp-for wax_sphere=32768] [--threads 2]
+    .venv/bin/python benchmarks/pbl_bench.py [--scenes a,b] [--resolution 96] [--pbl-spp 4[,16]]
+                                            [--pbl-seeds 1[,2,..]] [--volpath-spp 16] [--ref-spp 2048]
+                                            [--ref-spp-for wax_sphere=32768] [--threads 2]
                                             [--cache DIR] [--memory-check]
 
 For each scene, every stage in its own process (peak memory is per process; each process warms numba's cache
@@ -129,14 +130,18 @@ def reference(scene: Path, res: str, spp: int, threads: int, cache: Path):
     refdir = cache / "bench-refs"
     refdir.mkdir(parents=True, exist_ok=True)
     halves = []
+    key = _reference_key(scene, res)
     for seed in (101, 102):
         out = refdir / f"{scene.stem}_{res}_{spp // 2}spp_seed{seed}.exr"
+        key_file = out.with_suffix(".key")
         if out.exists():
             img, meta = read_exr(out)
-            if meta.get("scene_hash") != _scene_hash(scene, res):
+            known = key_file.read_text() if key_file.exists() else None
+            if known != key and meta.get("scene_hash") != _scene_hash(scene, res):
                 out.unlink()
         if not out.exists():
             _run(RENDER, scene, out, "volpath", spp // 2, seed, threads, res, cache)
+        key_file.write_text(key)
         halves.append(read_exr(out)[0].astype(np.float64))
     ref = 0.5 * (halves[0] + halves[1])
     return ref, rel_mse(halves[0], halves[1]) / 4.0
@@ -149,6 +154,29 @@ def scenes_with_references(args, res: str):
         scene = ROOT / "configs" / f"{name}.toml"
         ref, noise = reference(scene, res, args.ref_spp, args.threads, args.cache)
         yield name, scene, ref, noise
+
+
+# what a volpath reference does not depend on: the run's own settings and the other methods' (a reference stays
+# valid when a pbl default changes)
+NOT_IN_REFERENCE = {"render": {"spp", "seed", "threads", "time_limit", "lut", "pbl", "dipole", "raymarch", "vpl"}}
+
+
+def _reference_key(scene: Path, res: str) -> str:
+    """Hash of what a volpath reference of scene at res depends on (the scene less NOT_IN_REFERENCE, its built
+    geometry and media)."""
+    import hashlib
+
+    import numpy as np
+
+    from pbvol_cli import config as C
+    from pbvol_cli.geometry.scene_build import build_scene
+
+    sc = C.load_scene(scene)
+    built = build_scene(sc, scene, tuple(int(v) for v in res.split("x")))
+    h = hashlib.sha256(sc.model_dump_json(exclude=NOT_IN_REFERENCE).encode())
+    for arr in (built.surfaces, built.media, built.lights, built.spheres, built.vertices, built.faces):
+        h.update(np.ascontiguousarray(arr).tobytes())
+    return h.hexdigest()[:16]
 
 
 def _scene_hash(scene: Path, res: str) -> str:

@@ -4,7 +4,7 @@
     .venv/bin/python benchmarks/pbl_speed.py [--scenes oil_sphere,wax_sphere,wine_glass] [--resolution 256]
         [--pbl-spp 1,2,4,8] [--volpath-spp 16,64,256,1024] [--ref-spp 16384] [--target 1e-3] [--memory-check]
         [--out bench-out] [--threads 2] [--cache DIR]
-        [--mitsuba PYTHON --mitsuba-spp 64,256,1024 --mitsuba-integrators volpath,volpathmis]
+        [--mitsuba PYTHON --mitsuba-spp 64,256,1024 --mitsuba-integrators volpath,volpathmis] [--reuse-curves JSON]
 
 For each scene, every render in its own process (each warms numba's cache at 8x8 first, so that compiling is not
 timed; peak memory is per process):
@@ -15,7 +15,9 @@ timed; peak memory is per process):
      the time each method needs to reach --target (log-log interpolation between renders; volpath beyond its last
      render extrapolated as relMSE ~ 1/spp, pbl not extrapolated: it is biased);
   4. with --memory-check, pbl's peak memory at 512 x 512, 1 spp;
-  5. with --mitsuba (the python of a venv with mitsuba installed), Mitsuba 3's error against time for each of
+  5. with --reuse-curves, the volpath and Mitsuba curves of an earlier run's pbl_speed.json instead (they do not
+     depend on pbl's code; the reference must be the same, as it is from the cache);
+  6. with --mitsuba (the python of a venv with mitsuba installed), Mitsuba 3's error against time for each of
      --mitsuba-integrators on the scene as `pbvol export-mitsuba` writes it (benchmarks/mitsuba_reference.py, its
      JIT warm-up not timed), against the same reference, and pbl's speed-up to --target over the best of them
      (extrapolated like volpath's).
@@ -74,13 +76,19 @@ def main():
     ap.add_argument("--mitsuba-spp", default="64,256,1024")
     ap.add_argument("--mitsuba-integrators", default="volpath,volpathmis")
     ap.add_argument("--mitsuba-variant", default="llvm_ad_rgb")
+    ap.add_argument("--reuse-curves", type=Path, help="an earlier run's pbl_speed.json: its volpath and Mitsuba "
+                    "curves of the same scene and resolution are taken as they are (pbl is rendered anew)")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     res = f"{args.resolution}x{args.resolution}"
     rows = []
     for name, scene, ref, ref_noise in scenes_with_references(args, res):
         curves = {}
+        reused = reused_curves(args.reuse_curves, name, res)
         for method, spps in (("pbl", args.pbl_spp), ("volpath", args.volpath_spp)):
+            if method in reused:
+                curves[method] = reused[method]
+                continue
             pts = []
             for spp in (int(v) for v in spps.split(",")):
                 s, img = render(scene, method, spp, 1, res, args.threads, args.cache, args.out / f"{name}_{method}.exr")
@@ -89,6 +97,7 @@ def main():
             curves[method] = pts
         if args.mitsuba:
             curves.update(mitsuba_curves(args, name, scene, ref, ref_noise))
+        curves.update({k: v for k, v in reused.items() if k.startswith("mitsuba") and k not in curves})
         t_pass = next(p[0] for p in curves["pbl"] if p[2] == 1) if any(p[2] == 1 for p in curves["pbl"]) else None
         t_vp16 = next((p[0] for p in curves["volpath"] if p[2] == 16), None)
         tp = time_to([p[:2] for p in curves["pbl"]], args.target, extrapolate=False)
@@ -127,6 +136,14 @@ def main():
     print(table)
 
 
+def reused_curves(path: Path | None, name: str, res: str) -> dict:
+    """The curves other than pbl's of scene `name` at `res` in an earlier pbl_speed.json (path; None: none)."""
+    if path is None:
+        return {}
+    rows = [r for r in json.loads(path.read_text()) if r["scene"] == name and r["resolution"] == res]
+    return {k: [tuple(p) for p in v] for k, v in rows[0]["curves"].items() if k != "pbl"} if rows else {}
+
+
 def mitsuba_curves(args, name: str, scene: Path, ref, ref_noise: float) -> dict:
     """{"mitsuba <integrator>": [(seconds, relMSE against ref less its noise, spp, 0.0)]} at args.mitsuba_spp."""
     from pbvol_cli.imageio import read_exr
@@ -163,7 +180,7 @@ def _plot(path: Path, name: str, curves: dict, target: float):
     ax.set_xlabel("seconds")
     ax.set_ylabel("relMSE")
     ax.set_title(name)
-    ax.legend()
+    ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
