@@ -17,8 +17,9 @@ from numba import njit
 
 from pbvol_cli.physics.sampling import rand, stratified_depth
 from pbvol_cli.pointbased.light_cut import double_multiple
-from pbvol_cli.pointbased.radiance_cache import CacheSettings, shared_terms
-from pbvol_cli.pointbased.single_scattering import single_scattering
+from pbvol_cli.pointbased.radiance_cache import CacheSettings, scattered_points, shared_terms
+from pbvol_cli.pointbased.single_scattering import (POINTS_PER_SAMPLE_FOR_GRID, single_scattering,
+                                                     single_scattering_at_points)
 from pbvol_cli.pointbased.volume_samples import ENTRY_N, ENTRY_Q, EXIT_N, EXIT_Q, PLANE_COLS, Query, nearer_plane
 
 GatherSettings = namedtuple("GatherSettings", ["kmax", "cut_size", "clamp", "single", "double", "multiple",
@@ -95,17 +96,42 @@ def eval_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, setti
 
     Numba's parallel loops reject the nested tuples (the octree, the tables): threads over slices instead, the
     kernel releasing the GIL. Rays are independent, so the result does not depend on the split."""
-    if cache is None or not cache.cell > 0.0 or not (settings.double or settings.multiple or cache.single):
-        _on_threads(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes)
-        return
     after_diffuse = diffuse[idx] > 0  # every term at kmax_diffuse random points, as before
+    direct = idx[~after_diffuse]
+    if cache is None or not cache.cell > 0.0 or not (settings.double or settings.multiple or cache.single):
+        if settings.double or settings.multiple or not settings.single:
+            _on_threads(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes)
+        else:  # single scattering alone (the camera paths take it apart from the smooth terms)
+            _on_threads(pool, threads, idx[after_diffuse], pos, dirs, beta, tseg, rng, med, vs, settings, out,
+                        diffuse, planes)
+            single_along_segments(pool, threads, direct, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse,
+                                  planes)
+        return
     _on_threads(pool, threads, idx[after_diffuse], pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse,
                 planes)
-    direct = idx[~after_diffuse]
     if settings.single and not cache.single:
-        _on_threads(pool, threads, direct, pos, dirs, beta, tseg, rng, med, vs,
-                    settings._replace(double=False, multiple=False), out, diffuse, planes)
+        single_along_segments(pool, threads, direct, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse,
+                              planes)
     shared_terms(pool, threads, direct, pos, dirs, beta, tseg, rng, med, vs, settings, cache, out, planes, bin_rng)
+
+
+def single_along_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes):
+    """Single scattering of the rays idx (none after a diffuse bounce) at _segment's kmax points, into out: point by
+    point, or sample by sample where the points are many (single_scattering_at_points; the same sums)."""
+    single_only = settings._replace(double=False, multiple=False)
+    if len(idx) * settings.kmax < POINTS_PER_SAMPLE_FOR_GRID * vs.start.shape[0]:
+        _on_threads(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, single_only, out, diffuse, planes)
+        return
+    pts = scattered_points(idx, pos, dirs, beta, tseg, rng, med, settings.kmax, planes)
+    _add_single(pts.owner, pts.weight, single_scattering_at_points(pool, threads, vs, med, pts.pos, pts.dir), out)
+
+
+@njit(cache=True)
+def _add_single(owner, weight, s1, out):
+    """out[owner[j], LAYER_SINGLE] += weight[j] s1[j], in the points' order (a segment's points in _segment's)."""
+    for j in range(owner.shape[0]):
+        for c in range(3):
+            out[owner[j], LAYER_SINGLE, c] += weight[j, c] * s1[j, c]
 
 
 def _spread_bits(v):

@@ -75,6 +75,16 @@ def _scattered_points(idx, pos, dirs, beta, tseg, rng, med, k2, planes, out):
             m += 1
 
 
+def scattered_points(idx, pos, dirs, beta, tseg, rng, med, k, planes) -> ScatteredPoints:
+    """k points per segment idx[j] at gather._segment's stratified depths (drawing the segment's random number as
+    it does), its rays' arrays as there."""
+    m = len(idx) * k
+    pts = ScatteredPoints(np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 4)),
+                          np.empty(m, np.int64))
+    _scattered_points(idx, pos, dirs, beta, tseg, rng, med, k, planes, pts)
+    return pts
+
+
 @njit(nogil=True, cache=True)
 def _evaluate(reps, pts, rng, med, vs, settings, do_single, values):
     """The terms at the points reps (indices into pts: ScatteredPoints) into values (len(reps), 3 layers, 3)."""
@@ -155,13 +165,9 @@ def shared_terms(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settin
     evaluated once per bin (bin_keys) at a random point of it. settings: GatherSettings (its double and multiple
     flags and kmax_scattered); cache.single: single scattering shared too. bin_rng (numpy Generator): the grid's
     shift and turn and the points chosen. Returns the number of evaluations."""
-    k2 = settings.kmax_scattered
-    m = len(idx) * k2
-    if m == 0:
+    if len(idx) == 0:
         return 0
-    pts = ScatteredPoints(np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 4)),
-                          np.empty(m, np.int64))
-    _scattered_points(idx, pos, dirs, beta, tseg, rng, med, k2, planes, pts)
+    pts = scattered_points(idx, pos, dirs, beta, tseg, rng, med, settings.kmax_scattered, planes)
     mfp = 1.0 / float(np.max(med.sigma_a + med.sigma_s))
     depth = pts.plane[:, 3] - np.einsum("ij,ij->i", pts.plane[:, :3], pts.pos)
     keys = bin_keys(pts.pos, pts.dir, depth, lateral_width(cache, mfp, vs), cache.cell * mfp, cache.directions,

@@ -1,8 +1,14 @@
-"""Single scattering at a camera point: beam x point (Wang et al. 2016, eq. 4, read as photon beams).
+"""Single scattering at camera points: beam x point (Wang et al. 2016, eq. 4, read as photon beams).
 
 S_1(P, w) = sigma_s sum_v p(d_v . w) Phi_v e^(-sigma_t t_v(P)) / A_v over the beams whose kernel disc (area A_v,
 perpendicular to the beam) holds P, in W m^-3 sr^-1 per RGB channel: the photon-beam estimate that the paper's
 average over the boxes containing P approximates.
+
+Two ways to the same sums: point by point (single_scattering: a walk of the octree for each point), or, for many
+points at once, sample by sample (single_scattering_at_points: each beam segment visits the grid cells of the
+points its kernel cylinder may hold). A point's walk visits some 200 leaves and tests ten samples for each that
+holds it (the leaves' boxes are loose around oblique cylinders); the second way costs a pass over the samples, and
+pays from about one point per hundred samples (docs/pbl.md, section 4).
 """
 
 import math
@@ -15,22 +21,64 @@ from pbvol_cli.pointbased.octree import LEAF_WALK_STACK, next_leaf
 from pbvol_cli.pointbased.volume_samples import END_EXTENSION, ENTRY_N, ENTRY_Q
 
 PLANE_PATH_MIN_COS = 0.1  # legs closer than this to grazing their entry plane are attenuated along their axis
+GRID_CELL_RADII = 2.0  # the points' grid's cells, median kernel radii wide
+GRID_MAX_CELLS = 1 << 21  # the points' grid (single_scattering_at_points): cells at most, coarser cells beyond
+POINTS_PER_SAMPLE_FOR_GRID = 0.01  # points per volume sample from which the sample-by-sample way is taken:
+# on the oil sphere's 1.05 million samples the two ways cost the same at 6800 points (docs/pbl.md, section 4)
+
+
+@njit(inline="always", cache=True)
+def axial_extent(v_len, v_area, v_ends, i):
+    """(t_lo, t_hi): the stretch of volume sample i's axis, from its start, that its kernel cylinder spans. v_*:
+    VolumeSamples's arrays (the bundle is not passed to the inlined helpers: numba copies it at every call).
+
+    A segment that starts (ends) on the boundary is continued backward (forward) by END_EXTENSION kernel radii:
+    otherwise a point near the boundary misses the neighbouring beams whose discs reach it before they enter (after
+    they leave), a deficit in dense media; continued, the kernel average is exact for a flat boundary."""
+    ext = END_EXTENSION * math.sqrt(v_area[i] / math.pi)
+    return (-ext if v_ends[i] & 1 else 0.0), v_len[i] + (ext if v_ends[i] & 2 else 0.0)
+
+
+@njit(inline="always", cache=True)
+def axis_offset(qx, qy, qz, ux, uy, uz):
+    """(t, r^2): the offset q's position along the unit axis u and its squared distance from it."""
+    t = qx * ux + qy * uy + qz * uz
+    rx, ry, rz = qx - t * ux, qy - t * uy, qz - t * uz
+    return t, rx * rx + ry * ry + rz * rz
+
+
+@njit(cache=True)
+def add_beam(v_start, v_dir, v_plane, v_area, v_power, sig_a, sig_s, phase, g, i, px, py, pz, wx, wy, wz, out):
+    """Adds volume sample i's share of S_1 at P = (px, py, pz) toward w to out (3,) (a sample whose kernel
+    holds P).
+
+    The attenuation is taken over P's own path from the leg's entry plane (its depth below the plane / cos theta),
+    not along the beam's axis: across a kernel disc of radius r the beams' paths differ by up to r tan(theta), and
+    the disc's average of their exponentials exceeds the value at P by 2 I_1(x) / x, x = sigma_t r tan(theta)
+    (docs/pbl.md). Grazing legs keep the axis: there the tangent plane's depth is a poor guide a little aside."""
+    ph = phase_eval(phase, g, v_dir[i, 0] * wx + v_dir[i, 1] * wy + v_dir[i, 2] * wz) / v_area[i]
+    nx, ny, nz, q = v_plane[i, ENTRY_N], v_plane[i, ENTRY_N + 1], v_plane[i, ENTRY_N + 2], v_plane[i, ENTRY_Q]
+    cn = -(nx * v_dir[i, 0] + ny * v_dir[i, 1] + nz * v_dir[i, 2])
+    if cn > PLANE_PATH_MIN_COS:
+        # P's depth below the plane where the leg entered, never above it: no beam carries more than the
+        # power it entered with (a point beyond a curved boundary's tangent plane, or in the continuation)
+        depth_p = max(q - (nx * px + ny * py + nz * pz), 0.0)
+        tt = (depth_p - (q - (nx * v_start[i, 0] + ny * v_start[i, 1] + nz * v_start[i, 2]))) / cn
+    else:
+        # the backward continuation of a grazing leg keeps its entry power
+        tt = max((px - v_start[i, 0]) * v_dir[i, 0] + (py - v_start[i, 1]) * v_dir[i, 1]
+                 + (pz - v_start[i, 2]) * v_dir[i, 2], 0.0)
+    for c in range(3):
+        out[c] += sig_s[c] * ph * v_power[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * tt)
 
 
 @njit(cache=True)
 def single_scattering(vs, med, q, out):
-    """Adds S_1(P, w) to out (3,). vs: VolumeSamples, med: Medium, q: Query.
-
-    A segment that starts (ends) on the boundary is continued backward (forward) by END_EXTENSION kernel radii:
-    otherwise a point near the boundary misses the neighbouring beams whose discs reach it before they enter (after
-    they leave), a deficit in dense media; continued, the kernel average is exact for a flat boundary. The
-    attenuation is taken over P's own path from the leg's entry plane (its depth below the plane / cos theta), not
-    along the beam's axis: across a kernel disc of radius r the beams' paths differ by up to r tan(theta), and the
-    disc's average of their exponentials exceeds the value at P by 2 I_1(x) / x, x = sigma_t r tan(theta)
-    (docs/pbl.md). Grazing legs keep the axis: there the tangent plane's depth is a poor guide a little aside."""
-    tree, v_start, v_dir, v_len, v_power, v_area = vs.tree, vs.start, vs.dir, vs.len, vs.power, vs.area
-    v_ends, v_plane = vs.ends, vs.plane
-    sig_a, sig_s = med.sigma_a, med.sigma_s
+    """Adds S_1(P, w) to out (3,): the samples of the octree's leaves whose boxes hold P (add_beam where their
+    kernel cylinder holds it).
+    vs: VolumeSamples, med: Medium, q: Query."""
+    tree, v_start, v_dir, v_len, v_area, v_ends = vs.tree, vs.start, vs.dir, vs.len, vs.area, vs.ends
+    v_plane, v_power, sig_a, sig_s, phase, g = vs.plane, vs.power, med.sigma_a, med.sigma_s, med.phase, med.g
     px, py, pz, wx, wy, wz = q.x, q.y, q.z, q.wx, q.wy, q.wz
     order, start, end = tree[0], tree[8], tree[9]
     stack = np.empty(LEAF_WALK_STACK, np.int64)
@@ -44,21 +92,120 @@ def single_scattering(vs, med, q, out):
             i = order[k]
             qx, qy, qz = px - v_start[i, 0], py - v_start[i, 1], pz - v_start[i, 2]
             t = qx * v_dir[i, 0] + qy * v_dir[i, 1] + qz * v_dir[i, 2]
-            ext = END_EXTENSION * math.sqrt(v_area[i] / math.pi)
-            if t < (-ext if v_ends[i] & 1 else 0.0) or t >= v_len[i] + (ext if v_ends[i] & 2 else 0.0):
+            t_lo, t_hi = axial_extent(v_len, v_area, v_ends, i)
+            if t < t_lo or t >= t_hi:
                 continue
             rx, ry, rz = qx - t * v_dir[i, 0], qy - t * v_dir[i, 1], qz - t * v_dir[i, 2]
             if (rx * rx + ry * ry + rz * rz) * math.pi > v_area[i]:
                 continue
-            ph = phase_eval(med.phase, med.g, v_dir[i, 0] * wx + v_dir[i, 1] * wy + v_dir[i, 2] * wz) / v_area[i]
-            nx, ny, nz, q = v_plane[i, ENTRY_N], v_plane[i, ENTRY_N + 1], v_plane[i, ENTRY_N + 2], v_plane[i, ENTRY_Q]
-            cn = -(nx * v_dir[i, 0] + ny * v_dir[i, 1] + nz * v_dir[i, 2])
-            if cn > PLANE_PATH_MIN_COS:
-                # P's depth below the plane where the leg entered, never above it: no beam carries more than the
-                # power it entered with (a point beyond a curved boundary's tangent plane, or in the continuation)
-                depth_p = max(q - (nx * px + ny * py + nz * pz), 0.0)
-                tt = (depth_p - (q - (nx * v_start[i, 0] + ny * v_start[i, 1] + nz * v_start[i, 2]))) / cn
-            else:
-                tt = max(t, 0.0)  # the backward continuation of a grazing leg keeps its entry power
-            for c in range(3):
-                out[c] += sig_s[c] * ph * v_power[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * tt)
+            add_beam(v_start, v_dir, v_plane, v_area, v_power, sig_a, sig_s, phase, g, i, px, py, pz, wx, wy, wz, out)
+
+
+@njit(cache=True)
+def point_grid(pts, cell):
+    """The points (m, 3) sorted into a uniform grid of cubes `cell` wide (coarser where that would exceed
+    GRID_MAX_CELLS): (lo (3,), the cell's side, dims (3,), cell_start (cells + 1,), cell_points (m,)): the points of
+    cell (ix * dims[1] + iy) * dims[2] + iz are cell_points[cell_start[c]:cell_start[c + 1]]."""
+    m = pts.shape[0]
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for j in range(m):
+        for c in range(3):
+            lo[c] = min(lo[c], pts[j, c])
+            hi[c] = max(hi[c], pts[j, c])
+    side = max(cell, 1e-12)
+    ext = np.maximum(hi - lo, 0.0)
+    while (math.floor(ext[0] / side) + 1) * (math.floor(ext[1] / side) + 1) * (math.floor(ext[2] / side) + 1) \
+            > GRID_MAX_CELLS:
+        side *= 1.25
+    dims = np.empty(3, np.int64)
+    for c in range(3):
+        dims[c] = int(math.floor(ext[c] / side)) + 1
+    n_cells = dims[0] * dims[1] * dims[2]
+    cell_of = np.empty(m, np.int64)
+    cell_start = np.zeros(n_cells + 1, np.int64)
+    for j in range(m):
+        ix = min(int((pts[j, 0] - lo[0]) / side), dims[0] - 1)
+        iy = min(int((pts[j, 1] - lo[1]) / side), dims[1] - 1)
+        iz = min(int((pts[j, 2] - lo[2]) / side), dims[2] - 1)
+        cell_of[j] = (ix * dims[1] + iy) * dims[2] + iz
+        cell_start[cell_of[j] + 1] += 1
+    for c in range(n_cells):
+        cell_start[c + 1] += cell_start[c]
+    fill = cell_start[:-1].copy()
+    cell_points = np.empty(m, np.int64)
+    for j in range(m):  # in the points' order within a cell
+        cell_points[fill[cell_of[j]]] = j
+        fill[cell_of[j]] += 1
+    return lo, side, dims, cell_start, cell_points
+
+
+@njit(nogil=True, cache=True)
+def _splat(vs, med, pts, wdir, lo, side, dims, cell_start, x_from, x_to, out):
+    """Every volume sample's share added to the points of its kernel cylinder whose grid cells lie in the slab
+    x_from <= ix < x_to (pts, wdir, out (m, 3) in the grid's order: point_grid's cell_points). The samples are
+    taken in their order, so that each point's sum runs in the same order however the grid is cut in slabs (the
+    same image for any thread count)."""
+    v_start, v_dir, v_len, v_area, v_ends = vs.start, vs.dir, vs.len, vs.area, vs.ends
+    v_plane, v_power, sig_a, sig_s, phase, g = vs.plane, vs.power, med.sigma_a, med.sigma_s, med.phase, med.g
+    half_diag = 0.5 * math.sqrt(3.0) * side
+    for i in range(v_start.shape[0]):
+        rb, area = math.sqrt(v_area[i] / math.pi), v_area[i]
+        t_lo, t_hi = axial_extent(v_len, v_area, v_ends, i)
+        sx, sy, sz = v_start[i, 0], v_start[i, 1], v_start[i, 2]
+        ux, uy, uz = v_dir[i, 0], v_dir[i, 1], v_dir[i, 2]
+        ax, ay, az = sx + t_lo * ux, sy + t_lo * uy, sz + t_lo * uz  # the cylinder's axis from a to b
+        bx, by, bz = sx + t_hi * ux, sy + t_hi * uy, sz + t_hi * uz
+        # the cells of the cylinder's box (inclusive ranges), the x range cut to the slab
+        x0 = max(int(math.floor((min(ax, bx) - rb - lo[0]) / side)), x_from)
+        x1 = min(int(math.floor((max(ax, bx) + rb - lo[0]) / side)), x_to - 1)
+        y0 = max(int(math.floor((min(ay, by) - rb - lo[1]) / side)), 0)
+        y1 = min(int(math.floor((max(ay, by) + rb - lo[1]) / side)), dims[1] - 1)
+        z0 = max(int(math.floor((min(az, bz) - rb - lo[2]) / side)), 0)
+        z1 = min(int(math.floor((max(az, bz) + rb - lo[2]) / side)), dims[2] - 1)
+        if x0 > x1 or y0 > y1 or z0 > z1:
+            continue
+        reach2 = (rb + half_diag) ** 2  # a cell whose centre is farther from the axis holds no point of the disc
+        for ix in range(x0, x1 + 1):
+            cx = lo[0] + (ix + 0.5) * side - sx
+            for iy in range(y0, y1 + 1):
+                cy = lo[1] + (iy + 0.5) * side - sy
+                row = (ix * dims[1] + iy) * dims[2]
+                for iz in range(z0, z1 + 1):
+                    cz = lo[2] + (iz + 0.5) * side - sz
+                    t = min(max(cx * ux + cy * uy + cz * uz, t_lo), t_hi)
+                    dx, dy, dz = cx - t * ux, cy - t * uy, cz - t * uz
+                    if dx * dx + dy * dy + dz * dz > reach2:
+                        continue
+                    for j in range(cell_start[row + iz], cell_start[row + iz + 1]):
+                        t, r2 = axis_offset(pts[j, 0] - sx, pts[j, 1] - sy, pts[j, 2] - sz, ux, uy, uz)
+                        if t < t_lo or t >= t_hi or r2 * math.pi > area:  # not in its kernel cylinder
+                            continue
+                        add_beam(v_start, v_dir, v_plane, v_area, v_power, sig_a, sig_s, phase, g, i, pts[j, 0],
+                                 pts[j, 1], pts[j, 2], wdir[j, 0], wdir[j, 1], wdir[j, 2], out[j])
+
+
+def single_scattering_at_points(pool, threads, vs, med, pts, wdir):
+    """S_1 at the points pts (m, 3) toward wdir (m, 3, unit), (m, 3): the same sums as single_scattering at each,
+    taken sample by sample over a grid of the points (cells a median kernel radius wide), the grid cut in slabs of
+    about equal points, one a thread (pool: a ThreadPoolExecutor, or None)."""
+    m = len(pts)
+    out = np.zeros((m, 3))
+    if m == 0 or vs.start.shape[0] == 0:
+        return out
+    pts, wdir = np.ascontiguousarray(pts, np.float64), np.ascontiguousarray(wdir, np.float64)
+    cell = GRID_CELL_RADII * float(np.median(np.sqrt(vs.area / np.pi)))
+    lo, side, dims, cell_start, cell_points = point_grid(pts, cell)
+    pts, wdir = pts[cell_points], wdir[cell_points]  # a cell's points side by side
+    sorted_out = np.zeros((m, 3))
+    n_slabs = max(1, min(threads, int(dims[0])))
+    if pool is None or n_slabs == 1:
+        _splat(vs, med, pts, wdir, lo, side, dims, cell_start, 0, int(dims[0]), sorted_out)
+    else:
+        # slab edges at equal shares of the points, along x
+        per_x = np.diff(cell_start[::dims[1] * dims[2]])  # points per x slice of cells
+        edges = np.searchsorted(np.cumsum(per_x), np.arange(1, n_slabs) * m / n_slabs)
+        bounds = np.unique(np.concatenate([[0], edges + 1, [dims[0]]]).clip(0, dims[0]))
+        list(pool.map(lambda s: _splat(vs, med, pts, wdir, lo, side, dims, cell_start, int(bounds[s]),
+                                       int(bounds[s + 1]), sorted_out), range(len(bounds) - 1)))
+    out[cell_points] = sorted_out
+    return out
