@@ -391,11 +391,16 @@ def first_path_indices(surface_paths: int, first_pass: int, npix: int) -> tuple[
     return first_pass * npix * k, first_pass * k
 
 
+def _channel_max(a):
+    """The largest of each row's three channels (a: (n, 3)): numpy's max along a 3-wide axis is 6x slower."""
+    return np.maximum(np.maximum(a[:, 0], a[:, 1]), a[:, 2])
+
+
 def _roulette(ms, beta, kpaths, u, threshold: float):
     """The paths of ms that evaluate a term, those of weight beta_max below `threshold` with probability
     beta_max / threshold (u: a uniform number per path), and the weights they evaluate it with (beta divided by
     that probability, times the pixel's path count kpaths): unbiased."""
-    q = np.minimum(1.0, beta[ms].max(axis=1) / max(threshold, 1e-300))
+    q = np.minimum(1.0, _channel_max(beta[ms]) / max(threshold, 1e-300))
     keep = u < q
     ev = ms[keep]
     weight = beta.copy()
@@ -473,7 +478,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                 sub_rng = rng[sub]
                 # weak branches (internal reflections, the glass's many splits) gather with probability
                 # beta_max / roulette, their light divided by it: unbiased, as pbl's medium terms above
-                q = np.minimum(1.0, beta[sub].max(axis=1) / max(pbl.roulette, 1e-300))
+                q = np.minimum(1.0, _channel_max(beta[sub]) / max(pbl.roulette, 1e-300))
                 gather = evm[sub] & (roulette_rng.random(len(sub)) < q)
                 radiances, transmittance = segment.march(caster, int(m), pos[sub], dirs[sub], tev[sub], sub_rng,
                                                          gather)
@@ -513,7 +518,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
         for ch in range(3):
             layers["surface"][:, ch] += np.bincount(pixel, weights=emit[:, ch], minlength=npix)
             path_surface[:, ch] += np.bincount(path, weights=emit[:, ch], minlength=n)
-        keep = children.ok & (children.beta.max(axis=1) > 1e-5)
+        keep = children.ok & (_channel_max(children.beta) > 1e-5)
         parent = np.repeat(np.arange(k), 2)[keep]
         if entry is not None:
             entered = _entered(bs.surfaces, np.flatnonzero(keep), parent, surf, dirs, ng, medium, children.medium[keep])
