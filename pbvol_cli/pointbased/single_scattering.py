@@ -186,13 +186,17 @@ def _splat(vs, med, pts, wdir, lo, side, dims, cell_start, x_from, x_to, out):
 
 def single_scattering_at_points(pool, threads, vs, med, pts, wdir):
     """S_1 at the points pts (m, 3) toward wdir (m, 3, unit), (m, 3): the same sums as single_scattering at each,
-    taken sample by sample over a grid of the points (cells a median kernel radius wide), the grid cut in slabs of
-    about equal points, one a thread (pool: a ThreadPoolExecutor, or None)."""
+    taken sample by sample over a grid of the points (cells GRID_CELL_RADII median kernel radii wide), the grid cut
+    in slabs of about equal points, one a thread (pool: a ThreadPoolExecutor, or None)."""
     m = len(pts)
     out = np.zeros((m, 3))
     if m == 0 or vs.start.shape[0] == 0:
         return out
     pts, wdir = np.ascontiguousarray(pts, np.float64), np.ascontiguousarray(wdir, np.float64)
+    finite = np.isfinite(pts).all(axis=1)
+    if not finite.all():  # a point at infinity (along an unbounded segment) is in no kernel, as the walk finds
+        out[finite] = single_scattering_at_points(pool, threads, vs, med, pts[finite], wdir[finite])
+        return out
     cell = GRID_CELL_RADII * float(np.median(np.sqrt(vs.area / np.pi)))
     lo, side, dims, cell_start, cell_points = point_grid(pts, cell)
     pts, wdir = pts[cell_points], wdir[cell_points]  # a cell's points side by side

@@ -150,3 +150,9 @@ def test_sample_by_sample_sums_equal_the_walk(monkeypatch, max_cells):
     with ThreadPoolExecutor(3) as pool:
         three = single_scattering_at_points(pool, 3, vs, med, pts, w)
     assert np.array_equal(one, three)
+    # a point at infinity (a segment without an end) is in no kernel, and leaves the others' sums as they were
+    far = single_scattering_at_points(None, 1, vs, med, np.vstack([pts[:10], [[np.inf, 0.0, 0.0]]]), w[:11])
+    np.testing.assert_allclose(far[:10], walk[:10], rtol=1e-12, atol=0.0)
+    assert np.all(far[10] == 0.0)
+    np.testing.assert_allclose(single_scattering_at_points(None, 1, vs, med, pts[3:4], w[3:4]), walk[3:4],
+                               rtol=1e-12, atol=0.0)  # a grid of one point
