@@ -4,9 +4,9 @@
     .venv/bin/python benchmarks/pbl_profile.py [--scene oil_sphere] [--resolution 128] [--spp 2] [--cache DIR]
 
 Prints the render's time and, per stage, its total seconds over the passes and how often it ran: the lights' and
-the bounced samples' evaluation along camera segments (per point: single scattering and what is not shared; sample
-by sample: single scattering in large batches of points; shared: the smooth terms evaluated once per bin), the
-light side of a pass (placing a new light-sample set, the octrees over its volume samples, the bounced samples), the
+the bounced samples' evaluation along camera segments (per point: what is neither shared nor deferred; at a batch's
+points: single scattering, deferred to the batch's end; shared: the smooth terms evaluated once per bin), the light
+side of a pass (placing a new light-sample set, the octrees over its volume samples, the bounced samples), the
 camera paths' surface work. A warm-up render first, so that compiling is not counted.
 """
 
@@ -52,7 +52,7 @@ def main():
         setattr(module, name, wrapper)
 
     timed(gather, "_on_threads", "medium terms per point (single, and all after a diffuse bounce)")
-    timed(gather, "single_scattering_at_points", "single scattering sample by sample (large batches of points)")
+    timed(gather, "single_at_points", "single scattering at a batch's points (sample by sample, or point by point)")
     timed(gather, "shared_terms", "medium terms shared in bins (double, multiple, bounced)")
     timed(passes, "place_light_samples", "light side: a new light-sample set")
     timed(passes, "SampleSet", "light side: octrees over the volume samples")

@@ -30,8 +30,8 @@ from pbvol_cli.geometry.scene_build import (DIELECTRIC, DIFFUSE, MIRROR, NULL, S
 from pbvol_cli.physics.fresnel import reflect, refract
 from pbvol_cli.physics.lights import ENVIRONMENT, LIGHT_RGB, LIGHT_TYPE, emitted_toward, light_sample
 from pbvol_cli.physics.sampling import cosine_hemisphere, rand
-from pbvol_cli.pointbased.gather import (LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_SINGLE, eval_segments, gather_settings,
-                                         segment_planes)
+from pbvol_cli.pointbased.gather import (LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_SINGLE, DeferredSingle, eval_segments,
+                                         gather_settings, segment_planes)
 from pbvol_cli.pointbased.radiance_cache import cache_settings
 from pbvol_cli.pointbased.volume_samples import PLANE_COLS, medium_params, scattered_share
 from pbvol_cli.render.camera import camera_rays_for
@@ -431,6 +431,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                         0 if segment is None else 2 if segment.through_dielectrics else 1)
     cache, cache_b = cache_settings(pbl), cache_settings(pbl, single=True)  # the bounced light is smooth throughout
     entered = np.zeros(n)  # eta beyond / eta before where a ray has just entered a medium (0: it has not)
+    single = DeferredSingle()  # the lights' single scattering, evaluated for the whole batch at its end
     while len(pos):
         t, surf, ng, ns = closest_surface_hits(caster, bs, pos, dirs)
         tl, li = np.empty(len(pos)), np.empty(len(pos), np.int64)
@@ -457,9 +458,12 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                 ev, beta_ev = _roulette(ms, beta, kpaths, u, pbl.roulette)
                 if settings.single:
                     ev_s, beta_s = _roulette(ms, beta, kpaths, u, pbl.roulette_single)
-                    eval_segments(pool, threads, ev_s, pos, dirs, beta_s, tev, rng, med, lit.kernel,
+                    diffuse = (state >> 2)[ev_s] > 0  # after a diffuse bounce: random points, evaluated now
+                    eval_segments(pool, threads, ev_s[diffuse], pos, dirs, beta_s, tev, rng, med, lit.kernel,
                                   settings._replace(double=False, multiple=False), contrib, state >> 2, planes, cache,
                                   roulette_rng)
+                    single.add(int(m), lit.kernel, med, ev_s[~diffuse], pos, dirs, beta_s, tev, rng, settings.kmax,
+                               planes, pixel)
                 if settings.double or settings.multiple:
                     eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, med, lit.kernel,
                                   settings._replace(single=False), contrib, state >> 2, planes, cache, roulette_rng)
@@ -528,6 +532,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
         kpaths = kpaths[parent]
         n_start = ng[parent]  # a child leaves the surface its parent met
         rng = rng[parent] ^ (np.uint64(0x9E37) * (keep.nonzero()[0] % 2 + 1).astype(np.uint64))
+    single.flush(pool, threads, layers["single"], npix)
     return path_surface
 
 

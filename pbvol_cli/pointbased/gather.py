@@ -18,8 +18,7 @@ from numba import njit
 from pbvol_cli.physics.sampling import rand, stratified_depth
 from pbvol_cli.pointbased.light_cut import double_multiple
 from pbvol_cli.pointbased.radiance_cache import CacheSettings, scattered_points, shared_terms
-from pbvol_cli.pointbased.single_scattering import (POINTS_PER_SAMPLE_FOR_GRID, single_scattering,
-                                                     single_scattering_at_points)
+from pbvol_cli.pointbased.single_scattering import single_at_points, single_scattering
 from pbvol_cli.pointbased.volume_samples import ENTRY_N, ENTRY_Q, EXIT_N, EXIT_Q, PLANE_COLS, Query, nearer_plane
 
 GatherSettings = namedtuple("GatherSettings", ["kmax", "cut_size", "clamp", "single", "double", "multiple",
@@ -116,14 +115,13 @@ def eval_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, setti
 
 
 def single_along_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes):
-    """Single scattering of the rays idx (none after a diffuse bounce) at _segment's kmax points, into out: point by
-    point, or sample by sample where the points are many (single_scattering_at_points; the same sums)."""
-    single_only = settings._replace(double=False, multiple=False)
-    if len(idx) * settings.kmax < POINTS_PER_SAMPLE_FOR_GRID * vs.start.shape[0]:
-        _on_threads(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, single_only, out, diffuse, planes)
+    """Single scattering of the rays idx (none after a diffuse bounce) at _segment's kmax points, into out: the
+    same points and sums as _segment's, taken the cheaper way (single_scattering.single_at_points)."""
+    if len(idx) == 0:
         return
     pts = scattered_points(idx, pos, dirs, beta, tseg, rng, med, settings.kmax, planes)
-    _add_single(pts.owner, pts.weight, single_scattering_at_points(pool, threads, vs, med, pts.pos, pts.dir), out)
+    s1 = single_at_points(pool, threads, vs, med, pts.pos, pts.dir, morton_order(pts.pos))
+    _add_single(pts.owner, pts.weight, s1, out)
 
 
 @njit(cache=True)
@@ -134,6 +132,32 @@ def _add_single(owner, weight, s1, out):
             out[owner[j], LAYER_SINGLE, c] += weight[j, c] * s1[j, c]
 
 
+class DeferredSingle:
+    """The single scattering of a batch of camera paths, its points drawn segment by segment as the paths go
+    (scattered_points: the segment's random number drawn then, as _segment draws it) and evaluated together when
+    the batch ends (flush): one evaluation of many points, where each depth of the paths was one of fewer (sample
+    by sample, a pass over the volume samples each)."""
+
+    def __init__(self):
+        self.parts = {}  # medium -> (VolumeSamples, Medium, [(positions, directions, weights, pixels)])
+
+    def add(self, m: int, vs, med, idx, pos, dirs, beta, tseg, rng, kmax: int, planes, pixel):
+        """The kmax points of each segment idx (no diffuse bounce before it) in medium m, for pixels pixel[idx]."""
+        if len(idx) == 0:
+            return
+        pts = scattered_points(idx, pos, dirs, beta, tseg, rng, med, kmax, planes)
+        self.parts.setdefault(m, (vs, med, []))[2].append((pts.pos, pts.dir, pts.weight, pixel[pts.owner]))
+
+    def flush(self, pool, threads, layer, npix: int):
+        """Adds the points' single scattering times their weights into layer (npix, 3), per pixel."""
+        for vs, med, chunks in self.parts.values():
+            pos, wdir, weight, pixel = (np.concatenate([c[k] for c in chunks]) for k in range(4))
+            value = weight * single_at_points(pool, threads, vs, med, pos, wdir, morton_order(pos))
+            for ch in range(3):
+                layer[:, ch] += np.bincount(pixel, weights=value[:, ch], minlength=npix)
+        self.parts = {}
+
+
 def _spread_bits(v):
     """10-bit integers -> their bits spaced three apart (one axis of a Morton code)."""
     v = v.astype(np.uint64) & np.uint64(0x3FF)
@@ -142,17 +166,24 @@ def _spread_bits(v):
     return v
 
 
+def morton_order(points):
+    """The permutation of points (m, 3) along a Morton curve (a 1024^3 grid over their box): neighbours in space
+    become neighbours in the order, so the octree's nodes and samples their walks read stay in cache."""
+    if len(points) < 2:
+        return np.arange(len(points))
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    q = ((points - lo) / np.maximum(hi - lo, 1e-30) * 1023.0).astype(np.int64)
+    code = _spread_bits(q[:, 0]) | (_spread_bits(q[:, 1]) << np.uint64(1)) | (_spread_bits(q[:, 2]) << np.uint64(2))
+    return np.argsort(code, kind="stable")
+
+
 def spatial_order(idx, pos, dirs, tseg):
-    """idx reordered along a Morton curve through its segments' midpoints (a 1024^3 grid over their box): points
-    near in space are evaluated one after another, so the octree's nodes and samples they read stay in cache. Each
-    ray's terms are its own, so the order changes no value."""
+    """idx reordered along a Morton curve through its segments' midpoints (morton_order). Each ray's terms are its
+    own, so the order changes no value."""
     if len(idx) < 2:
         return idx
     mid = pos[idx] + 0.5 * np.where(np.isfinite(tseg[idx]), tseg[idx], 0.0)[:, None] * dirs[idx]
-    lo, hi = mid.min(axis=0), mid.max(axis=0)
-    q = ((mid - lo) / np.maximum(hi - lo, 1e-30) * 1023.0).astype(np.int64)
-    code = _spread_bits(q[:, 0]) | (_spread_bits(q[:, 1]) << np.uint64(1)) | (_spread_bits(q[:, 2]) << np.uint64(2))
-    return idx[np.argsort(code, kind="stable")]
+    return idx[morton_order(mid)]
 
 
 def _on_threads(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes):

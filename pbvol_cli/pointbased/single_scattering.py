@@ -18,7 +18,7 @@ from numba import njit
 
 from pbvol_cli.physics.phase import phase_eval
 from pbvol_cli.pointbased.octree import LEAF_WALK_STACK, next_leaf
-from pbvol_cli.pointbased.volume_samples import END_EXTENSION, ENTRY_N, ENTRY_Q
+from pbvol_cli.pointbased.volume_samples import END_EXTENSION, ENTRY_N, ENTRY_Q, NO_PLANE, Query
 
 PLANE_PATH_MIN_COS = 0.1  # legs closer than this to grazing their entry plane are attenuated along their axis
 GRID_CELL_RADII = 2.0  # the points' grid's cells, median kernel radii wide
@@ -212,4 +212,32 @@ def single_scattering_at_points(pool, threads, vs, med, pts, wdir):
         list(pool.map(lambda s: _splat(vs, med, pts, wdir, lo, side, dims, cell_start, int(bounds[s]),
                                        int(bounds[s + 1]), sorted_out), range(len(bounds) - 1)))
     out[cell_points] = sorted_out
+    return out
+
+
+@njit(nogil=True, cache=True)
+def _walk_points(idx, vs, med, pts, wdir, out):
+    """single_scattering at the points idx of pts (toward wdir), into out (m, 3)."""
+    for k in range(idx.shape[0]):
+        j = idx[k]
+        single_scattering(vs, med, Query(pts[j, 0], pts[j, 1], pts[j, 2], wdir[j, 0], wdir[j, 1], wdir[j, 2], NO_PLANE),
+                          out[j])
+
+
+def single_at_points(pool, threads, vs, med, pts, wdir, order=None):
+    """S_1 at the points pts (m, 3) toward wdir (m, 3), (m, 3), the cheaper way: sample by sample
+    (single_scattering_at_points) from POINTS_PER_SAMPLE_FOR_GRID points per volume sample, else point by point on
+    `threads` interleaved slices of `order` (a permutation of the points that keeps neighbours together: the walks
+    then find the octree's nodes in cache; None: as given). The same sums either way."""
+    m = len(pts)
+    if m >= POINTS_PER_SAMPLE_FOR_GRID * vs.start.shape[0]:
+        return single_scattering_at_points(pool, threads, vs, med, pts, wdir)
+    out = np.zeros((m, 3))
+    pts, wdir = np.ascontiguousarray(pts, np.float64), np.ascontiguousarray(wdir, np.float64)
+    idx = np.arange(m, dtype=np.int64) if order is None else np.asarray(order, np.int64)
+    if pool is None or threads <= 1 or m < 64:
+        _walk_points(idx, vs, med, pts, wdir, out)
+    else:
+        list(pool.map(lambda t: _walk_points(np.ascontiguousarray(idx[t::threads]), vs, med, pts, wdir, out),
+                      range(threads)))
     return out
