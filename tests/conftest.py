@@ -109,3 +109,31 @@ def single_scattering_reference(built, sigma_s, sigma_t, g, light_dir, E, R, k=6
                     acc += 0.5 * (t1 - t0) * (ws[:, None] * f).sum(0)
             out[py, px] = acc / (k * k)
     return out, covered
+
+
+def random_volume_samples(rng, n, half=2.0):
+    """n volume samples in the cube [-half, half]^3: random directions, lengths, kernel areas and boundary ends
+    (continued at the boundary), entry planes facing their legs, as VolumeSamples (no multiple-scattering tables)."""
+    from pbvol_cli.multiple_scattering.table import empty_table
+    from pbvol_cli.pointbased.octree import build_octree, node_lobes
+    from pbvol_cli.pointbased.volume_samples import VolumeSamples
+
+    start = rng.uniform(-half, half, (n, 3))
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    length = rng.uniform(0.05, 0.8, n)
+    area = math.pi * rng.uniform(0.05, 0.2, n) ** 2
+    power = rng.uniform(0.5, 1.5, (n, 3))
+    ends = rng.integers(0, 4, n)
+    plane = np.zeros((n, 8))
+    plane[:, 0:3] = -d  # the entry plane through the start, its normal against the leg
+    plane[:, 3] = np.einsum("ij,ij->i", -d, start)
+    plane[:, 4:7] = d
+    plane[:, 7] = np.einsum("ij,ij->i", d, start) + length
+    rb = np.sqrt(area / math.pi)
+    a, b = start - 3 * rb[:, None] * d, start + (length + 3 * rb)[:, None] * d
+    lo, hi = np.minimum(a, b) - rb[:, None], np.maximum(a, b) + rb[:, None]
+    centre = start + 0.5 * length[:, None] * d
+    tree = build_octree(centre, lo, hi, d, power).arrays()
+    return VolumeSamples(tree, start, d, length, power, area, centre, power, rb, ends, plane,
+                         (empty_table().render_args(),) * 3, 0.0, node_lobes(tree))

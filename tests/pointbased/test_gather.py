@@ -1,9 +1,14 @@
-"""The gather along ray segments in a medium: the segments' boundary planes, the order rays are evaluated in."""
+"""The gather along ray segments in a medium: the segments' boundary planes, the order rays are evaluated in, single
+scattering deferred to a batch's end."""
 
 import numpy as np
 import pytest
 
-from pbvol_cli.pointbased.gather import segment_planes, spatial_order
+import pbvol_cli.pointbased.single_scattering as single_module
+from conftest import random_volume_samples
+from pbvol_cli.pointbased.gather import (LAYER_SINGLE, DeferredSingle, GatherSettings, _on_threads, segment_planes,
+                                         spatial_order)
+from pbvol_cli.pointbased.volume_samples import Medium
 
 
 def test_segment_planes_face_out_of_the_segment_on_either_side():
@@ -44,3 +49,36 @@ def test_spatial_order_is_a_permutation_that_keeps_neighbours_together():
 
     assert mean_step(out) < 0.25 * mean_step(idx)
     assert spatial_order(idx[:1], pos, dirs, t).tolist() == idx[:1].tolist()
+
+
+@pytest.mark.parametrize("grid_from", [0.0, np.inf])
+def test_deferred_single_scattering_adds_what_the_segments_would(monkeypatch, grid_from):
+    """Single scattering drawn segment by segment in two path depths (DeferredSingle.add) and evaluated at the
+    batch's end, sample by sample (grid_from 0) or point by point (inf), against each segment's own evaluation
+    (gather._segment): the same points (each segment's random number drawn as there) and sums per pixel, two
+    segments sharing a pixel."""
+    monkeypatch.setattr(single_module, "POINTS_PER_SAMPLE_FOR_GRID", grid_from)
+    rng = np.random.default_rng(9)
+    vs = random_volume_samples(rng, 2000)
+    med = Medium(np.array([0.2, 0.5, 1.0]), np.array([1.0, 0.8, 0.5]), 1, 0.7)
+    n = 600
+    pos, dirs = rng.uniform(-2.0, 2.0, (n, 3)), rng.normal(size=(n, 3))
+    dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+    tseg, beta = rng.uniform(0.2, 3.0, n), rng.uniform(0.1, 1.0, (n, 3))
+    planes = segment_planes(pos, dirs, tseg, None, None)
+    streams = rng.integers(1, 2 ** 62, n).astype(np.uint64)
+    settings = GatherSettings(2, 8, 0.02, True, False, False, 1, 1)
+    each = np.zeros((n, 4, 3))
+    rng_e = streams.copy()
+    _on_threads(None, 1, np.arange(n), pos, dirs, beta, tseg, rng_e, med, vs, settings, each, np.zeros(n, np.int64),
+                planes)
+    pixel = np.arange(n) // 2
+    deferred, layer, rng_d = DeferredSingle(), np.zeros((n // 2, 3)), streams.copy()
+    for depth in (np.arange(0, n, 2), np.arange(1, n, 2)):
+        deferred.add(0, vs, med, depth, pos, dirs, beta, tseg, rng_d, settings.kmax, planes, pixel)
+    deferred.flush(None, 1, layer, n // 2)
+    expected = np.zeros((n // 2, 3))
+    np.add.at(expected, pixel, each[:, LAYER_SINGLE])
+    assert (expected[:, 0] > 0).mean() > 0.5
+    np.testing.assert_allclose(layer, expected, rtol=1e-12, atol=0.0)
+    assert np.array_equal(rng_d, rng_e) and not np.array_equal(rng_d, streams)  # one draw a segment, as there

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from conftest import (SPHERE_G, SPHERE_LIGHT_DIR, SPHERE_SIGMA_A, SPHERE_SIGMA_S, build, medium_sphere_scene,
-                      single_scattering_reference, write_scene)
+                      random_volume_samples, single_scattering_reference, write_scene)
 from pbvol_cli.imageio import read_layers
 from pbvol_cli.multiple_scattering.table import empty_table
 from pbvol_cli.physics.phase import phase_eval
@@ -104,30 +104,6 @@ def test_no_beam_carries_more_than_the_power_it_entered_with(grazing):
     assert out[0] > 0 and out[0] <= entry * (1 + 1e-12), (out[0], entry)
 
 
-def _random_segments(rng, n, half=2.0):
-    """n volume samples in the cube [-half, half]^3: random directions, lengths, kernel areas and boundary ends
-    (continued at the boundary), entry planes facing their legs, as VolumeSamples."""
-    start = rng.uniform(-half, half, (n, 3))
-    d = rng.normal(size=(n, 3))
-    d /= np.linalg.norm(d, axis=1)[:, None]
-    length = rng.uniform(0.05, 0.8, n)
-    area = math.pi * rng.uniform(0.05, 0.2, n) ** 2
-    power = rng.uniform(0.5, 1.5, (n, 3))
-    ends = rng.integers(0, 4, n)
-    plane = np.zeros((n, 8))
-    plane[:, 0:3] = -d  # the entry plane through the start, its normal against the leg
-    plane[:, 3] = np.einsum("ij,ij->i", -d, start)
-    plane[:, 4:7] = d
-    plane[:, 7] = np.einsum("ij,ij->i", d, start) + length
-    rb = np.sqrt(area / math.pi)
-    a, b = start - 3 * rb[:, None] * d, start + (length + 3 * rb)[:, None] * d
-    lo, hi = np.minimum(a, b) - rb[:, None], np.maximum(a, b) + rb[:, None]
-    centre = start + 0.5 * length[:, None] * d
-    tree = build_octree(centre, lo, hi, d, power).arrays()
-    return VolumeSamples(tree, start, d, length, power, area, centre, power, rb, ends, plane,
-                         (empty_table().render_args(),) * 3, 0.0, node_lobes(tree))
-
-
 @pytest.mark.parametrize("max_cells", [1 << 21, 64])
 def test_sample_by_sample_sums_equal_the_walk(monkeypatch, max_cells):
     """single_scattering_at_points against single_scattering point by point: 3000 segments of every direction,
@@ -136,7 +112,7 @@ def test_sample_by_sample_sums_equal_the_walk(monkeypatch, max_cells):
     coarsened far beyond its cell size finds the same beams."""
     monkeypatch.setattr(single_module, "GRID_MAX_CELLS", max_cells)
     rng = np.random.default_rng(5)
-    vs = _random_segments(rng, 3000)
+    vs = random_volume_samples(rng, 3000)
     med = Medium(np.array([0.2, 0.5, 1.0]), np.array([1.0, 0.8, 0.5]), 1, 0.7)
     pts = np.concatenate([rng.uniform(-2.5, 2.5, (1500, 3)), rng.normal(0.3, 0.05, (500, 3))])
     w = rng.normal(size=(len(pts), 3))
