@@ -6,7 +6,8 @@ import pytest
 
 import pbvol_cli.pointbased.single_scattering as single_module
 from conftest import random_volume_samples
-from pbvol_cli.pointbased.gather import (LAYER_SINGLE, DeferredSingle, GatherSettings, _on_threads, segment_planes,
+from pbvol_cli.physics.sampling import rand
+from pbvol_cli.pointbased.gather import (LAYER_SINGLE, DeferredSingle, GatherSettings, eval_segments, segment_planes,
                                          spatial_order)
 from pbvol_cli.pointbased.volume_samples import Medium
 
@@ -67,11 +68,12 @@ def test_deferred_single_scattering_adds_what_the_segments_would(monkeypatch, gr
     tseg, beta = rng.uniform(0.2, 3.0, n), rng.uniform(0.1, 1.0, (n, 3))
     planes = segment_planes(pos, dirs, tseg, None, None)
     streams = rng.integers(1, 2 ** 62, n).astype(np.uint64)
-    settings = GatherSettings(2, 8, 0.02, True, False, False, 1, 1)
+    # single with double scattering: every segment point by point (_segment), its single scattering at the kmax
+    # points of the segment's first random number
+    settings = GatherSettings(2, 8, 0.02, True, True, False, 1, 1)
     each = np.zeros((n, 4, 3))
-    rng_e = streams.copy()
-    _on_threads(None, 1, np.arange(n), pos, dirs, beta, tseg, rng_e, med, vs, settings, each, np.zeros(n, np.int64),
-                planes)
+    eval_segments(None, 1, np.arange(n), pos, dirs, beta, tseg, streams.copy(), med, vs, settings, each,
+                  np.zeros(n, np.int64), planes)
     pixel = np.arange(n) // 2
     deferred, layer, rng_d = DeferredSingle(), np.zeros((n // 2, 3)), streams.copy()
     for depth in (np.arange(0, n, 2), np.arange(1, n, 2)):
@@ -81,4 +83,7 @@ def test_deferred_single_scattering_adds_what_the_segments_would(monkeypatch, gr
     np.add.at(expected, pixel, each[:, LAYER_SINGLE])
     assert (expected[:, 0] > 0).mean() > 0.5
     np.testing.assert_allclose(layer, expected, rtol=1e-12, atol=0.0)
-    assert np.array_equal(rng_d, rng_e) and not np.array_equal(rng_d, streams)  # one draw a segment, as there
+    once = streams.copy()
+    for i in range(n):
+        rand(once, i)
+    assert np.array_equal(rng_d, once)  # one random number a segment, as _segment draws
