@@ -474,7 +474,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                     cb3 = np.zeros((len(pos), 3, 3))
                     eval_segments(pool, threads, evb, pos, dirs, beta_b, tev, rng, med, bounced.kernel, settings_b,
                                   cb3, state >> 2, planes, cache_b, roulette_rng)
-                    contrib[:, LAYER_BOUNCED] += cb3.sum(axis=1)
+                    contrib[:, LAYER_BOUNCED] += cb3[:, 0] + cb3[:, 1] + cb3[:, 2]  # numpy's 3-wide sum is slow
             if entry is not None:
                 _add_entry_term(entry, int(m), sub[evm[sub] & (entered[sub] > 0)], pos, beta, kpaths, entered,
                                 pixel, npix, layers)
@@ -522,16 +522,17 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
         for ch in range(3):
             layers["surface"][:, ch] += np.bincount(pixel, weights=emit[:, ch], minlength=npix)
             path_surface[:, ch] += np.bincount(path, weights=emit[:, ch], minlength=n)
-        keep = children.ok & (_channel_max(children.beta) > 1e-5)
-        parent = np.repeat(np.arange(k), 2)[keep]
+        # the children kept, by slot (indices: numpy's boolean indexing finds them anew for every array)
+        slots = np.flatnonzero(children.ok & (_channel_max(children.beta) > 1e-5))
+        parent = slots >> 1
         if entry is not None:
-            entered = _entered(bs.surfaces, np.flatnonzero(keep), parent, surf, dirs, ng, medium, children.medium[keep])
-        pos, dirs, beta = children.pos[keep], children.dir[keep], children.beta[keep]
-        medium, state = children.medium[keep], children.state[keep]
+            entered = _entered(bs.surfaces, slots, parent, surf, dirs, ng, medium, children.medium[slots])
+        pos, dirs, beta = children.pos[slots], children.dir[slots], children.beta[slots]
+        medium, state = children.medium[slots], children.state[slots]
         depth, pixel, evm, path = depth[parent] + 1, pixel[parent], evm[parent], path[parent]
         kpaths = kpaths[parent]
         n_start = ng[parent]  # a child leaves the surface its parent met
-        rng = rng[parent] ^ (np.uint64(0x9E37) * (keep.nonzero()[0] % 2 + 1).astype(np.uint64))
+        rng = rng[parent] ^ (np.uint64(0x9E37) * (slots % 2 + 1).astype(np.uint64))
     single.flush(pool, threads, layers["single"], npix)
     return path_surface
 
