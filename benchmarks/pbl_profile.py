@@ -52,7 +52,7 @@ def main():
         setattr(module, name, wrapper)
 
     timed(gather, "_on_threads", "medium terms per point (single, and all after a diffuse bounce)")
-    timed(gather, "single_at_points", "single scattering at a batch's points (sample by sample, or point by point)")
+    timed(gather, "single_scattering_at_points", "single scattering at a batch's points (by samples or point by point)")
     timed(gather, "shared_terms", "medium terms shared in bins (double, multiple, bounced)")
     timed(passes, "place_light_samples", "light side: a new light-sample set")
     timed(passes, "SampleSet", "light side: octrees over the volume samples")

@@ -18,7 +18,7 @@ from numba import njit
 from pbvol_cli.physics.sampling import rand, stratified_depth
 from pbvol_cli.pointbased.light_cut import double_multiple
 from pbvol_cli.pointbased.radiance_cache import CacheSettings, scattered_points, shared_terms
-from pbvol_cli.pointbased.single_scattering import single_at_points, single_scattering
+from pbvol_cli.pointbased.single_scattering import single_scattering_at_points, single_scattering
 from pbvol_cli.pointbased.volume_samples import ENTRY_N, ENTRY_Q, EXIT_N, EXIT_Q, PLANE_COLS, Query, nearer_plane
 
 GatherSettings = namedtuple("GatherSettings", ["kmax", "cut_size", "clamp", "single", "double", "multiple",
@@ -116,11 +116,11 @@ def eval_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, setti
 
 def single_along_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes):
     """Single scattering of the rays idx (none after a diffuse bounce) at _segment's kmax points, into out: the
-    same points and sums as _segment's, taken the cheaper way (single_scattering.single_at_points)."""
+    same points and sums as _segment's, taken the cheaper way (single_scattering.single_scattering_at_points)."""
     if len(idx) == 0:
         return
     pts = scattered_points(idx, pos, dirs, beta, tseg, rng, med, settings.kmax, planes)
-    s1 = single_at_points(pool, threads, vs, med, pts.pos, pts.dir, morton_order(pts.pos))
+    s1 = single_scattering_at_points(pool, threads, vs, med, pts.pos, pts.dir, morton_order(pts.pos))
     _add_single(pts.owner, pts.weight, s1, out)
 
 
@@ -152,7 +152,7 @@ class DeferredSingle:
         """Adds the points' single scattering times their weights into layer (npix, 3), per pixel."""
         for vs, med, chunks in self.parts.values():
             pos, wdir, weight, pixel = (np.concatenate([c[k] for c in chunks]) for k in range(4))
-            value = weight * single_at_points(pool, threads, vs, med, pos, wdir, morton_order(pos))
+            value = weight * single_scattering_at_points(pool, threads, vs, med, pos, wdir, morton_order(pos))
             for ch in range(3):
                 layer[:, ch] += np.bincount(pixel, weights=value[:, ch], minlength=npix)
         self.parts = {}

@@ -5,10 +5,11 @@ perpendicular to the beam) holds P, in W m^-3 sr^-1 per RGB channel: the photon-
 average over the boxes containing P approximates.
 
 Two ways to the same sums: point by point (single_scattering: a walk of the octree for each point), or, for many
-points at once, sample by sample (single_scattering_at_points: each beam segment visits the grid cells of the
+points at once, sample by sample (single_scattering_by_samples: each beam segment visits the grid cells of the
 points its kernel cylinder may hold). A point's walk visits some 200 leaves and tests ten samples for each that
 holds it (the leaves' boxes are loose around oblique cylinders); the second way costs a pass over the samples, and
-pays from about one point per hundred samples (docs/pbl.md, section 4).
+pays from about one point per hundred samples (docs/pbl.md, section 4). single_scattering_at_points takes the
+cheaper of the two for a set of points.
 """
 
 import math
@@ -22,7 +23,7 @@ from pbvol_cli.pointbased.volume_samples import END_EXTENSION, ENTRY_N, ENTRY_Q,
 
 PLANE_PATH_MIN_COS = 0.1  # legs closer than this to grazing their entry plane are attenuated along their axis
 GRID_CELL_RADII = 2.0  # the points' grid's cells, median kernel radii wide
-GRID_MAX_CELLS = 1 << 21  # the points' grid (single_scattering_at_points): cells at most, coarser cells beyond
+GRID_MAX_CELLS = 1 << 21  # the points' grid (single_scattering_by_samples): cells at most, coarser cells beyond
 POINTS_PER_SAMPLE_FOR_GRID = 0.01  # points per volume sample from which the sample-by-sample way is taken:
 # on the oil sphere's 1.05 million samples the two ways cost the same at 6800 points (docs/pbl.md, section 4)
 
@@ -184,7 +185,7 @@ def _splat(vs, med, pts, wdir, lo, side, dims, cell_start, x_from, x_to, out):
                                  pts[j, 1], pts[j, 2], wdir[j, 0], wdir[j, 1], wdir[j, 2], out[j])
 
 
-def single_scattering_at_points(pool, threads, vs, med, pts, wdir):
+def single_scattering_by_samples(pool, threads, vs, med, pts, wdir):
     """S_1 at the points pts (m, 3) toward wdir (m, 3, unit), (m, 3): the same sums as single_scattering at each,
     taken sample by sample over a grid of the points (cells GRID_CELL_RADII median kernel radii wide), the grid cut
     in slabs of about equal points, one a thread (pool: a ThreadPoolExecutor, or None)."""
@@ -195,7 +196,7 @@ def single_scattering_at_points(pool, threads, vs, med, pts, wdir):
     pts, wdir = np.ascontiguousarray(pts, np.float64), np.ascontiguousarray(wdir, np.float64)
     finite = np.isfinite(pts).all(axis=1)
     if not finite.all():  # a point at infinity (along an unbounded segment) is in no kernel, as the walk finds
-        out[finite] = single_scattering_at_points(pool, threads, vs, med, pts[finite], wdir[finite])
+        out[finite] = single_scattering_by_samples(pool, threads, vs, med, pts[finite], wdir[finite])
         return out
     cell = GRID_CELL_RADII * float(np.median(np.sqrt(vs.area / np.pi)))
     lo, side, dims, cell_start, cell_points = point_grid(pts, cell)
@@ -224,14 +225,14 @@ def _walk_points(idx, vs, med, pts, wdir, out):
                           out[j])
 
 
-def single_at_points(pool, threads, vs, med, pts, wdir, order=None):
+def single_scattering_at_points(pool, threads, vs, med, pts, wdir, order=None):
     """S_1 at the points pts (m, 3) toward wdir (m, 3), (m, 3), the cheaper way: sample by sample
-    (single_scattering_at_points) from POINTS_PER_SAMPLE_FOR_GRID points per volume sample, else point by point on
+    (single_scattering_by_samples) from POINTS_PER_SAMPLE_FOR_GRID points per volume sample, else point by point on
     `threads` interleaved slices of `order` (a permutation of the points that keeps neighbours together: the walks
     then find the octree's nodes in cache; None: as given). The same sums either way."""
     m = len(pts)
     if m >= POINTS_PER_SAMPLE_FOR_GRID * vs.start.shape[0]:
-        return single_scattering_at_points(pool, threads, vs, med, pts, wdir)
+        return single_scattering_by_samples(pool, threads, vs, med, pts, wdir)
     out = np.zeros((m, 3))
     pts, wdir = np.ascontiguousarray(pts, np.float64), np.ascontiguousarray(wdir, np.float64)
     idx = np.arange(m, dtype=np.int64) if order is None else np.asarray(order, np.int64)

@@ -15,7 +15,7 @@ from pbvol_cli.physics.phase import phase_eval
 from pbvol_cli.pipeline.render import RenderOptions, render_scene
 from pbvol_cli.pointbased.octree import build_octree, node_lobes
 import pbvol_cli.pointbased.single_scattering as single_module
-from pbvol_cli.pointbased.single_scattering import single_scattering, single_scattering_at_points
+from pbvol_cli.pointbased.single_scattering import single_scattering, single_scattering_by_samples
 from pbvol_cli.pointbased.volume_samples import NO_PLANE, Medium, Query, VolumeSamples
 
 
@@ -106,7 +106,7 @@ def test_no_beam_carries_more_than_the_power_it_entered_with(grazing):
 
 @pytest.mark.parametrize("max_cells", [1 << 21, 64])
 def test_sample_by_sample_sums_equal_the_walk(monkeypatch, max_cells):
-    """single_scattering_at_points against single_scattering point by point: 3000 segments of every direction,
+    """single_scattering_by_samples against single_scattering point by point: 3000 segments of every direction,
     length, width and boundary continuation, 2000 points (some in clumps, so that cells hold several): the same
     sums to rounding, and bit-identical on one thread and on three (the grid cut in slabs). max_cells 64: a grid
     coarsened far beyond its cell size finds the same beams."""
@@ -121,14 +121,14 @@ def test_sample_by_sample_sums_equal_the_walk(monkeypatch, max_cells):
     for j in range(len(pts)):
         single_scattering(vs, med, Query(*pts[j], *w[j], NO_PLANE), walk[j])
     assert (walk[:, 0] > 0).mean() > 0.5  # most points lie in some kernel
-    one = single_scattering_at_points(None, 1, vs, med, pts, w)
+    one = single_scattering_by_samples(None, 1, vs, med, pts, w)
     np.testing.assert_allclose(one, walk, rtol=1e-12, atol=0.0)
     with ThreadPoolExecutor(3) as pool:
-        three = single_scattering_at_points(pool, 3, vs, med, pts, w)
+        three = single_scattering_by_samples(pool, 3, vs, med, pts, w)
     assert np.array_equal(one, three)
     # a point at infinity (a segment without an end) is in no kernel, and leaves the others' sums as they were
-    far = single_scattering_at_points(None, 1, vs, med, np.vstack([pts[:10], [[np.inf, 0.0, 0.0]]]), w[:11])
+    far = single_scattering_by_samples(None, 1, vs, med, np.vstack([pts[:10], [[np.inf, 0.0, 0.0]]]), w[:11])
     np.testing.assert_allclose(far[:10], walk[:10], rtol=1e-12, atol=0.0)
     assert np.all(far[10] == 0.0)
-    np.testing.assert_allclose(single_scattering_at_points(None, 1, vs, med, pts[3:4], w[3:4]), walk[3:4],
+    np.testing.assert_allclose(single_scattering_by_samples(None, 1, vs, med, pts[3:4], w[3:4]), walk[3:4],
                                rtol=1e-12, atol=0.0)  # a grid of one point
