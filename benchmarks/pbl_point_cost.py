@@ -6,7 +6,9 @@ of a scene's first medium, from its cached light samples, on one thread.
 
 The points are uniform in the sphere of radius --radius about the origin (the example spheres), each with a random
 direction and its tangent plane on that sphere as the boundary plane. Prints, per term, the best and median of five
-timed runs in microseconds a point, and a checksum of the values (equal checksums: the same arithmetic).
+timed runs in microseconds a point, and a checksum of the values (equal checksums: the same arithmetic). The term
+single-by-samples is single scattering at all the points at once, sample by sample (single_scattering.py): its
+time a point falls as the points grow against the samples (compare with single at --points 10000 and 100000).
 """
 
 from __future__ import annotations
@@ -57,6 +59,7 @@ def points_in_sphere(m: int, radius: float, rng):
 def main():
     from pbvol_cli.pointbased.gather import gather_settings
     from pbvol_cli.pointbased.radiance_cache import ScatteredPoints, _evaluate
+    from pbvol_cli.pointbased.single_scattering import single_scattering_by_samples
     from pbvol_cli.pointbased.volume_samples import medium_params
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -75,17 +78,24 @@ def main():
     reps = np.arange(m)
     print(f"{path.stem}: {sample_set.count} volume samples, {m} points, one thread")
     for term in args.terms.split(","):
-        names = tuple(term.split("+"))
-        settings = gather_settings(scene.render.pbl, names)
-        single = "single" in names
         values = np.zeros((m, 3, 3))
-        streams = np.arange(m, dtype=np.uint64) * np.uint64(2654435761) + np.uint64(1)
-        _evaluate(reps[:10], pts, streams.copy(), med, sample_set.kernel, settings, single, values)  # compile
+        if term == "single-by-samples":  # the same sums, sample by sample over a grid of all the points at once
+            def run(k=m):
+                values[:k, 0] = single_scattering_by_samples(None, 1, sample_set.kernel, med, pos[:k], dirs[:k])
+        else:
+            names = tuple(term.split("+"))
+            settings = gather_settings(scene.render.pbl, names)
+            single = "single" in names
+            streams = np.arange(m, dtype=np.uint64) * np.uint64(2654435761) + np.uint64(1)
+
+            def run(k=m):
+                _evaluate(reps[:k], pts, streams.copy(), med, sample_set.kernel, settings, single, values)
+        run(10)  # compile
         times = []
         for _ in range(5):
             values[:] = 0.0
             t = time.perf_counter()
-            _evaluate(reps, pts, streams.copy(), med, sample_set.kernel, settings, single, values)
+            run()
             times.append(time.perf_counter() - t)
         times.sort()
         print(f"  {term:18s} {1e6 * times[0] / m:8.1f} µs best, {1e6 * times[2] / m:8.1f} median, "
