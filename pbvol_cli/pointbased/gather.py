@@ -169,10 +169,12 @@ def _spread_bits(v):
 def morton_order(points):
     """The permutation of points (m, 3) along a Morton curve (a 1024^3 grid over their box): neighbours in space
     become neighbours in the order, so the octree's nodes and samples their walks read stay in cache."""
-    if len(points) < 2:
+    finite = np.isfinite(points).all(axis=1)  # a point at infinity (an unbounded segment's) goes first
+    if len(points) < 2 or not finite.any():
         return np.arange(len(points))
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    q = ((points - lo) / np.maximum(hi - lo, 1e-30) * 1023.0).astype(np.int64)
+    lo, hi = points[finite].min(axis=0), points[finite].max(axis=0)
+    cell = np.where(finite[:, None], (points - lo) / np.maximum(hi - lo, 1e-30) * 1023.0, 0.0)
+    q = np.clip(cell, 0.0, 1023.0).astype(np.int64)
     code = _spread_bits(q[:, 0]) | (_spread_bits(q[:, 1]) << np.uint64(1)) | (_spread_bits(q[:, 2]) << np.uint64(2))
     return np.argsort(code, kind="stable")
 

@@ -7,8 +7,8 @@ import pytest
 import pbvol_cli.pointbased.single_scattering as single_module
 from conftest import random_volume_samples
 from pbvol_cli.physics.sampling import rand
-from pbvol_cli.pointbased.gather import (LAYER_SINGLE, DeferredSingle, GatherSettings, eval_segments, segment_planes,
-                                         spatial_order)
+from pbvol_cli.pointbased.gather import (LAYER_SINGLE, DeferredSingle, GatherSettings, eval_segments, morton_order,
+                                         segment_planes, spatial_order)
 from pbvol_cli.pointbased.volume_samples import Medium
 
 
@@ -87,3 +87,17 @@ def test_deferred_single_scattering_adds_what_the_segments_would(monkeypatch, gr
     for i in range(n):
         rand(once, i)
     assert np.array_equal(rng_d, once)  # one random number a segment, as _segment draws
+
+
+def test_morton_order_takes_points_at_infinity_first_without_warnings():
+    """A point at infinity or NaN (an unbounded segment's) does not spoil the others' order, nor warn."""
+    rng = np.random.default_rng(2)
+    pts = rng.normal(size=(200, 3))
+    others = np.delete(np.arange(200), [3, 50])
+    with np.errstate(all="raise"):
+        plain = others[morton_order(pts[others])]
+        bad = pts.copy()
+        bad[[3, 50]] = [np.inf, 0.0, 0.0], [np.nan, 1.0, 1.0]
+        order = morton_order(bad)
+    assert set(order[:2].tolist()) == {3, 50}
+    assert order[2:].tolist() == plain.tolist()
