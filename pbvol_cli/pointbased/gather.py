@@ -169,7 +169,7 @@ def _spread_bits(v):
 def morton_order(points):
     """The permutation of points (m, 3) along a Morton curve (a 1024^3 grid over their box): neighbours in space
     become neighbours in the order, so the octree's nodes and samples their walks read stay in cache."""
-    finite = np.isfinite(points).all(axis=1)  # a point at infinity (an unbounded segment's) goes first
+    finite = np.isfinite(points).all(axis=1)  # a point at infinity (an unbounded segment's) takes the first cell
     if len(points) < 2 or not finite.any():
         return np.arange(len(points))
     lo, hi = points[finite].min(axis=0), points[finite].max(axis=0)

@@ -89,7 +89,7 @@ def test_deferred_single_scattering_adds_what_the_segments_would(monkeypatch, gr
     assert np.array_equal(rng_d, once)  # one random number a segment, as _segment draws
 
 
-def test_morton_order_takes_points_at_infinity_first_without_warnings():
+def test_morton_order_puts_points_at_infinity_in_its_first_cell_without_warnings():
     """A point at infinity or NaN (an unbounded segment's) does not spoil the others' order, nor warn."""
     rng = np.random.default_rng(2)
     pts = rng.normal(size=(200, 3))
