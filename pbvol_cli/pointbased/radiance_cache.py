@@ -153,6 +153,17 @@ def representatives(group: np.ndarray, weight: np.ndarray, rng) -> np.ndarray:
     return order[pick]
 
 
+def thread_parts(owner: np.ndarray, threads: int) -> list[np.ndarray]:
+    """The representatives (their segments owner) dealt to `threads` parts, each holding all of a segment's and
+    keeping their order: a segment's random state is then advanced by one thread, in the same order for any
+    thread count. Segments are dealt by their rank among the owners present, not by their index: the camera's
+    rays in a medium often have indices of one parity (a transmitted child is every second slot), and a split by
+    owner % threads gave one thread all the work."""
+    _, rank = np.unique(owner, return_inverse=True)
+    part = rank.ravel() % threads
+    return [np.flatnonzero(part == t) for t in range(threads)]
+
+
 def lateral_width(cache: CacheSettings, mfp: float, vs) -> float:
     """The bins' width along the boundary (scene units): cache.lateral mean free paths mfp, at most SIZE_SHARE of
     the medium's size (vs.size: the volume samples' box), at least a cell deep."""
@@ -180,8 +191,7 @@ def shared_terms(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settin
     if threads <= 1 or len(reps) < 64:
         _evaluate(reps, pts, rng, med, vs, settings, do_single, values)
     else:
-        # a segment's random state is used by one thread only: points split by their segment
-        parts = [np.flatnonzero(pts.owner[reps] % threads == t) for t in range(threads)]
+        parts = thread_parts(pts.owner[reps], threads)
         vals = [np.zeros((len(p), 3, 3)) for p in parts]
         list(pool.map(lambda t: _evaluate(reps[parts[t]], pts, rng, med, vs, settings, do_single, vals[t]),
                       range(threads)))

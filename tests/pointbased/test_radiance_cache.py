@@ -12,7 +12,8 @@ from pbvol_cli.multiple_scattering.table import empty_table
 from pbvol_cli.pipeline.render import RenderOptions, render_scene
 from pbvol_cli.pointbased.gather import LAYER_DOUBLE, GatherSettings, eval_segments, segment_planes
 from pbvol_cli.pointbased.light_samples import place_light_samples
-from pbvol_cli.pointbased.radiance_cache import CacheSettings, bin_keys, lateral_width, representatives, shared_terms
+from pbvol_cli.pointbased.radiance_cache import (CacheSettings, bin_keys, lateral_width, representatives, shared_terms,
+                                                 thread_parts)
 from pbvol_cli.pointbased.volume_samples import SampleSet
 
 
@@ -52,6 +53,19 @@ def test_representatives_are_drawn_in_proportion_to_the_weights():
     assert np.all(picks[:, 1] == 3) and np.all(picks[:, 2] == 5)  # a bin of zero weight: its first point
     share = (picks[:, 0] == 1).mean()
     assert abs(share - 0.75) < 4 * math.sqrt(0.75 * 0.25 / 4000) and not np.any(picks[:, 0] == 2)
+
+
+def test_thread_parts_share_the_work_when_every_segment_index_is_odd():
+    # the camera's rays in a medium are often transmitted children, every second slot: odd indices only
+    owner = np.array([7, 3, 3, 11, 5, 9, 7, 1, 13, 15, 3, 17])
+    parts = thread_parts(owner, 2)
+    assert sorted(np.concatenate(parts).tolist()) == list(range(len(owner)))  # each representative once
+    for p in parts:
+        assert np.all(np.diff(p) > 0)  # in the representatives' order
+    owners = [set(owner[p].tolist()) for p in parts]
+    assert not owners[0] & owners[1]  # a segment's representatives (its random state) on one thread
+    assert [len(o) for o in owners] == [5, 4]  # nine segments dealt alternately
+    assert len(thread_parts(owner, 1)[0]) == len(owner)
 
 
 def _double_along_chords(sample_set, cell, lateral, runs, pool, toward=1.0):
