@@ -48,39 +48,51 @@ def axis_offset(qx, qy, qz, ux, uy, uz):
     return t, rx * rx + ry * ry + rz * rz
 
 
-@njit(cache=True)
-def add_beam(v_start, v_dir, v_plane, v_area, v_power, sig_a, sig_s, phase, g, i, px, py, pz, wx, wy, wz, out):
-    """Adds volume sample i's share of S_1 at P = (px, py, pz) toward w to out (3,) (a sample whose kernel
-    holds P).
+@njit(inline="always", cache=True)
+def beam_frame(v_start, v_dir, v_plane, v_area, v_power, sig_s, i):
+    """What volume sample i's share of S_1 (beam_share) needs of the sample, once for all the points it reaches:
+    (a_R, a_G, a_B) = sigma_s Phi / A per channel (m^-3), and its leg's entry plane n . x = q with the sample
+    start's depth below it d0 and the cosine cn between the leg and the inward normal (scene units)."""
+    inv_area = 1.0 / v_area[i]
+    nx, ny, nz, q = v_plane[i, ENTRY_N], v_plane[i, ENTRY_N + 1], v_plane[i, ENTRY_N + 2], v_plane[i, ENTRY_Q]
+    cn = -(nx * v_dir[i, 0] + ny * v_dir[i, 1] + nz * v_dir[i, 2])
+    d0 = q - (nx * v_start[i, 0] + ny * v_start[i, 1] + nz * v_start[i, 2])
+    return (sig_s[0] * v_power[i, 0] * inv_area, sig_s[1] * v_power[i, 1] * inv_area,
+            sig_s[2] * v_power[i, 2] * inv_area, nx, ny, nz, q, d0, cn)
+
+
+@njit(inline="always", cache=True)
+def beam_share(a0, a1, a2, nx, ny, nz, q, d0, cn, ux, uy, uz, st0, st1, st2, phase, g, t, px, py, pz, wx, wy, wz,
+               out):
+    """Adds a volume sample's share of S_1 at P = (px, py, pz) toward w to out (3,) (a sample whose kernel holds
+    P): its beam_frame (a, the plane, d0, cn), its direction u, sigma_t per channel (st), and t, P's offset along
+    its axis from its start.
 
     The attenuation is taken over P's own path from the leg's entry plane (its depth below the plane / cos theta),
     not along the beam's axis: across a kernel disc of radius r the beams' paths differ by up to r tan(theta), and
     the disc's average of their exponentials exceeds the value at P by 2 I_1(x) / x, x = sigma_t r tan(theta)
     (docs/pbl.md). Grazing legs keep the axis: there the tangent plane's depth is a poor guide a little aside."""
-    ph = phase_eval(phase, g, v_dir[i, 0] * wx + v_dir[i, 1] * wy + v_dir[i, 2] * wz) / v_area[i]
-    nx, ny, nz, q = v_plane[i, ENTRY_N], v_plane[i, ENTRY_N + 1], v_plane[i, ENTRY_N + 2], v_plane[i, ENTRY_Q]
-    cn = -(nx * v_dir[i, 0] + ny * v_dir[i, 1] + nz * v_dir[i, 2])
+    ph = phase_eval(phase, g, ux * wx + uy * wy + uz * wz)
     if cn > PLANE_PATH_MIN_COS:
         # P's depth below the plane where the leg entered, never above it: no beam carries more than the
         # power it entered with (a point beyond a curved boundary's tangent plane, or in the continuation)
-        depth_p = max(q - (nx * px + ny * py + nz * pz), 0.0)
-        tt = (depth_p - (q - (nx * v_start[i, 0] + ny * v_start[i, 1] + nz * v_start[i, 2]))) / cn
+        tt = (max(q - (nx * px + ny * py + nz * pz), 0.0) - d0) / cn
     else:
-        # the backward continuation of a grazing leg keeps its entry power
-        tt = max((px - v_start[i, 0]) * v_dir[i, 0] + (py - v_start[i, 1]) * v_dir[i, 1]
-                 + (pz - v_start[i, 2]) * v_dir[i, 2], 0.0)
-    for c in range(3):
-        out[c] += sig_s[c] * ph * v_power[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * tt)
+        tt = max(t, 0.0)  # the backward continuation of a grazing leg keeps its entry power
+    out[0] += a0 * ph * math.exp(-st0 * tt)
+    out[1] += a1 * ph * math.exp(-st1 * tt)
+    out[2] += a2 * ph * math.exp(-st2 * tt)
 
 
 @njit(cache=True)
 def single_scattering(vs, med, q, out):
-    """Adds S_1(P, w) to out (3,): the samples of the octree's leaves whose boxes hold P (add_beam where their
+    """Adds S_1(P, w) to out (3,): the samples of the octree's leaves whose boxes hold P (beam_share where their
     kernel cylinder holds it).
     vs: VolumeSamples, med: Medium, q: Query."""
     tree, v_start, v_dir, v_len, v_area, v_ends = vs.tree, vs.start, vs.dir, vs.len, vs.area, vs.ends
     v_plane, v_power, sig_a, sig_s, phase, g = vs.plane, vs.power, med.sigma_a, med.sigma_s, med.phase, med.g
     px, py, pz, wx, wy, wz = q.x, q.y, q.z, q.wx, q.wy, q.wz
+    st0, st1, st2 = sig_a[0] + sig_s[0], sig_a[1] + sig_s[1], sig_a[2] + sig_s[2]
     order, start, end = tree[0], tree[8], tree[9]
     stack = np.empty(LEAF_WALK_STACK, np.int64)
     sp = np.ones(1, np.int64)
@@ -99,7 +111,9 @@ def single_scattering(vs, med, q, out):
             rx, ry, rz = qx - t * v_dir[i, 0], qy - t * v_dir[i, 1], qz - t * v_dir[i, 2]
             if (rx * rx + ry * ry + rz * rz) * math.pi > v_area[i]:
                 continue
-            add_beam(v_start, v_dir, v_plane, v_area, v_power, sig_a, sig_s, phase, g, i, px, py, pz, wx, wy, wz, out)
+            a0, a1, a2, nx, ny, nz, pq, d0, cn = beam_frame(v_start, v_dir, v_plane, v_area, v_power, sig_s, i)
+            beam_share(a0, a1, a2, nx, ny, nz, pq, d0, cn, v_dir[i, 0], v_dir[i, 1], v_dir[i, 2], st0, st1, st2,
+                       phase, g, t, px, py, pz, wx, wy, wz, out)
 
 
 @njit(cache=True)
@@ -148,6 +162,7 @@ def _splat(vs, med, pts, wdir, lo, side, dims, cell_start, x_from, x_to, out):
     same image for any thread count)."""
     v_start, v_dir, v_len, v_area, v_ends = vs.start, vs.dir, vs.len, vs.area, vs.ends
     v_plane, v_power, sig_a, sig_s, phase, g = vs.plane, vs.power, med.sigma_a, med.sigma_s, med.phase, med.g
+    st0, st1, st2 = sig_a[0] + sig_s[0], sig_a[1] + sig_s[1], sig_a[2] + sig_s[2]
     half_diag = 0.5 * math.sqrt(3.0) * side
     for i in range(v_start.shape[0]):
         rb, area = math.sqrt(v_area[i] / math.pi), v_area[i]
@@ -166,6 +181,7 @@ def _splat(vs, med, pts, wdir, lo, side, dims, cell_start, x_from, x_to, out):
         if x0 > x1 or y0 > y1 or z0 > z1:
             continue
         reach2 = (rb + half_diag) ** 2  # a cell whose centre is farther from the axis holds no point of the disc
+        a0, a1, a2, nx, ny, nz, pq, d0, cn = beam_frame(v_start, v_dir, v_plane, v_area, v_power, sig_s, i)
         for ix in range(x0, x1 + 1):
             cx = lo[0] + (ix + 0.5) * side - sx
             for iy in range(y0, y1 + 1):
@@ -181,8 +197,8 @@ def _splat(vs, med, pts, wdir, lo, side, dims, cell_start, x_from, x_to, out):
                         t, r2 = axis_offset(pts[j, 0] - sx, pts[j, 1] - sy, pts[j, 2] - sz, ux, uy, uz)
                         if t < t_lo or t >= t_hi or r2 * math.pi > area:  # not in its kernel cylinder
                             continue
-                        add_beam(v_start, v_dir, v_plane, v_area, v_power, sig_a, sig_s, phase, g, i, pts[j, 0],
-                                 pts[j, 1], pts[j, 2], wdir[j, 0], wdir[j, 1], wdir[j, 2], out[j])
+                        beam_share(a0, a1, a2, nx, ny, nz, pq, d0, cn, ux, uy, uz, st0, st1, st2, phase, g, t,
+                                   pts[j, 0], pts[j, 1], pts[j, 2], wdir[j, 0], wdir[j, 1], wdir[j, 2], out[j])
 
 
 def single_scattering_by_samples(pool, threads, vs, med, pts, wdir):
