@@ -16,8 +16,8 @@ from pbvol_cli.pipeline.cache import cached_entry, key_of
 # 2: indirect diffuse light at the surface samples; 3: boundary planes; 4: glass walls reflect; 5-7: roulette on
 # weak reflections, planes beyond the boundary; 8: a light is not its own shadow blocker; 9: light guided by
 # reflections inside transparent layers; 11: indirect light
-# path traced (v_returned: light that scattered before it reached the sample)
-FORMAT_VERSION = 11
+# path traced (v_returned: light that scattered before it reached the sample); 12: volume samples in Morton order
+FORMAT_VERSION = 12
 
 
 @dataclass

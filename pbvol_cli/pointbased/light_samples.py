@@ -23,6 +23,7 @@ from pbvol_cli.geometry.scene_build import (DIELECTRIC, NULL, SPH_SURFACE, SURF_
 from pbvol_cli.physics.lights import light_sample
 from pbvol_cli.physics.sampling import cosine_directions, rand, seed_state
 from pbvol_cli.pointbased.beams import Beams, beam_segments, concatenate_beams, into_media, thin_by_power
+from pbvol_cli.pointbased.gather import morton_order
 from pbvol_cli.pointbased.surface_samples import SHARING_RADIUS, poisson_disk, share_among_neighbours
 from pbvol_cli.pointbased.volume_samples import PLANE_COLS
 from pbvol_cli.render.interfaces import shadow_ray_length
@@ -237,6 +238,11 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
         caster.close()
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     flag = np.concatenate([np.zeros(len(parts[0]["len"]), np.int8), np.ones(len(parts[1]["len"]), np.int8)])
+    # stored along a Morton curve through the segments' centres: the octrees over them (volume_samples.SampleSet,
+    # built for every render) then gather neighbours from neighbouring memory instead of at random
+    order = morton_order(cat["start"] + 0.5 * cat["len"][:, None] * cat["dir"])
+    cat = {k: v[order] for k, v in cat.items()}
+    flag = flag[order]
     if progress is not None:
         progress(steps, steps)
     return LightSamples(light.pos, light.nrm, light.sid, np.full(len(light.pos), light.area), light.irradiance,

@@ -6,6 +6,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from conftest import build, camera
+from pbvol_cli.pointbased.gather import morton_order
 from pbvol_cli.pointbased.light_samples import outer_layer_surfaces, place_light_samples
 from pbvol_cli.pointbased.surface_samples import poisson_disk
 
@@ -73,6 +74,11 @@ def test_refracting_sphere_beams_stay_inside_through_internal_reflections(tmp_pa
     assert len(ls.v_start) > 8 * beams
     assert len(outer_layer_surfaces(bs)) == 1
     _check_planes(ls, lambda c: 1.0 - np.linalg.norm(c, axis=1))
+    # stored along a Morton curve through the segments' centres (the octrees then read neighbours side by side)
+    centres = ls.v_start + 0.5 * ls.v_len[:, None] * ls.v_dir
+    assert np.array_equal(morton_order(centres), np.arange(len(centres)))
+    step = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+    assert np.median(step) < 0.1 * np.median(np.linalg.norm(centres - centres[::-1], axis=1))
 
 
 def _check_planes(ls, depth):
