@@ -357,11 +357,14 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         acc = {name: np.zeros((npix, 3)) for name in names}
         surface_sq = np.zeros((npix, 3))
         per_pass = len(pixels)
+        single = DeferredSingle()  # the lights' single scattering, evaluated for many batches at once
         for c0 in range(0, per_pass, chunk):
             part = slice(c0, min(c0 + chunk, per_pass))
             path_surface = _trace_batch(bs, caster, pool, threads, media_data, seed, done + c0, pixels[part],
                                         samples[part], evm[part], k[pixels[part]], npix, settings, settings_b, pbl,
-                                        acc, entry_p, segment_p)
+                                        acc, single, entry_p, segment_p)
+            if single.full() or part.stop == per_pass:
+                single.flush(pool, threads, acc["single"], npix)
             for ch in range(3):
                 surface_sq[:, ch] += np.bincount(pixels[part], weights=path_surface[:, ch] ** 2, minlength=npix)
             if progress is not None:
@@ -409,11 +412,12 @@ def _roulette(ms, beta, kpaths, u, threshold: float):
 
 
 def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samples, evm, kpaths, npix, settings,
-                 settings_b, pbl, layers, entry=None, segment=None):
+                 settings_b, pbl, layers, single, entry=None, segment=None):
     """Camera paths (sample samples[i] of pixel pixels[i]; `done` paths traced before them in this render), traced to
-    the end, added into layers. Path i evaluates the medium where evm[i], its medium terms weighted kpaths[i] (its
-    pixel's path count in this pass), and the entry term (render_pbl) where it enters a medium. Returns each path's
-    surface light (n, 3)."""
+    the end, added into layers; the lights' single scattering (where it needs no random points: no diffuse bounce
+    before) into single (gather.DeferredSingle), which the caller flushes into layers["single"]. Path i evaluates
+    the medium where evm[i], its medium terms weighted kpaths[i] (its pixel's path count in this pass), and the
+    entry term (render_pbl) where it enters a medium. Returns each path's surface light (n, 3)."""
     n = len(pixels)
     pos, dirs = np.zeros((n, 3)), np.zeros((n, 3))
     rng = np.zeros(n, np.uint64)
@@ -431,7 +435,6 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                         0 if segment is None else 2 if segment.through_dielectrics else 1)
     cache, cache_b = cache_settings(pbl), cache_settings(pbl, single=True)  # the bounced light is smooth throughout
     entered = np.zeros(n)  # eta beyond / eta before where a ray has just entered a medium (0: it has not)
-    single = DeferredSingle()  # the lights' single scattering, evaluated for the whole batch at its end
     while len(pos):
         t, surf, ng, ns = closest_surface_hits(caster, bs, pos, dirs)
         tl, li = np.empty(len(pos)), np.empty(len(pos), np.int64)
@@ -533,7 +536,6 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
         kpaths = kpaths[parent]
         n_start = ng[parent]  # a child leaves the surface its parent met
         rng = rng[parent] ^ (np.uint64(0x9E37) * (slots % 2 + 1).astype(np.uint64))
-    single.flush(pool, threads, layers["single"], npix)
     return path_surface
 
 

@@ -132,14 +132,23 @@ def _add_single(owner, weight, s1, out):
             out[owner[j], LAYER_SINGLE, c] += weight[j, c] * s1[j, c]
 
 
+DEFERRED_POINTS = 1 << 19  # points a DeferredSingle holds before it evaluates them (about 40 MB of them)
+
+
 class DeferredSingle:
-    """The single scattering of a batch of camera paths, its points drawn segment by segment as the paths go
-    (scattered_points: the segment's random number drawn then, as _segment draws it) and evaluated together when
-    the batch ends (flush): one evaluation of many points, where each depth of the paths was one of fewer (sample
-    by sample, a pass over the volume samples each)."""
+    """The single scattering of camera paths, its points drawn segment by segment as the paths go
+    (scattered_points: the segment's random number drawn then, as _segment draws it) and evaluated together later
+    (flush): one evaluation of many points, where each depth of the paths, or each batch of them, was one of fewer.
+    Sample by sample a flush costs a pass over the volume samples and the grid cells of their kernels, however few
+    the points: one flush of a pass's points at 512 x 512, where the camera's batches were four."""
 
     def __init__(self):
         self.parts = {}  # medium -> (VolumeSamples, Medium, [(positions, directions, weights, pixels)])
+        self.count = 0  # the points held
+
+    def full(self) -> bool:
+        """Whether it holds DEFERRED_POINTS points or more (the caller flushes it: memory stays bounded)."""
+        return self.count >= DEFERRED_POINTS
 
     def add(self, m: int, vs, med, idx, pos, dirs, beta, tseg, rng, kmax: int, planes, pixel):
         """The kmax points of each segment idx (no diffuse bounce before it) in medium m, for pixels pixel[idx]."""
@@ -147,6 +156,7 @@ class DeferredSingle:
             return
         pts = scattered_points(idx, pos, dirs, beta, tseg, rng, med, kmax, planes)
         self.parts.setdefault(m, (vs, med, []))[2].append((pts.pos, pts.dir, pts.weight, pixel[pts.owner]))
+        self.count += len(pts.owner)
 
     def flush(self, pool, threads, layer, npix: int):
         """Adds the points' single scattering times their weights into layer (npix, 3), per pixel."""
@@ -156,6 +166,7 @@ class DeferredSingle:
             for ch in range(3):
                 layer[:, ch] += np.bincount(pixel, weights=value[:, ch], minlength=npix)
         self.parts = {}
+        self.count = 0
 
 
 def _spread_bits(v):

@@ -198,3 +198,30 @@ def test_single_scatterings_own_roulette_keeps_every_layers_mean(tmp_path):
     print("single, double: no roulette", a.mean(0), "roulette 1", b.mean(0), "se", se)
     assert np.all(a.mean(0) > 0) and np.all(se > 0)
     assert np.all(np.abs(a.mean(0) - b.mean(0)) < 4 * se), (a.mean(0), b.mean(0), se)
+
+
+def test_single_scattering_deferred_over_batches_is_the_same_flushed_often(tmp_path, monkeypatch):
+    """The lights' single scattering of a pass is evaluated for many camera batches at once (gather.DeferredSingle),
+    flushed when it holds DEFERRED_POINTS points: with batches of 64 paths and a flush every 100 points the single
+    layer is the one of a single flush (each point's sum is its own; without roulette nothing else depends on the
+    batches)."""
+    import pbvol_cli.pointbased.camera_pass as camera_pass
+    import pbvol_cli.pointbased.gather as gather
+
+    scene = medium_sphere_scene(surface_samples=800, segments_per_beam=4, components=["single"])
+    scene["shapes"][0].update(interface="dielectric", eta=1.5)
+    scene["render"]["pbl"]["roulette_single"] = 0.0
+    flushes = []
+    flush = gather.DeferredSingle.flush
+    monkeypatch.setattr(gather.DeferredSingle, "flush", lambda self, *a: (flushes.append(self.count), flush(self, *a)))
+    layers = []
+    for chunk, points in ((camera_pass.CAMERA_CHUNK, gather.DEFERRED_POINTS), (64, 100)):
+        monkeypatch.setattr(camera_pass, "CAMERA_CHUNK", chunk)
+        monkeypatch.setattr(gather, "DEFERRED_POINTS", points)
+        flushes.clear()
+        out = next(_seed_renders(tmp_path, scene, spp=1, seeds=[3]))
+        layers.append(read_layers(out)["single"].astype(float))
+        print(chunk, points, "flushes", len(flushes), "points", sum(flushes))
+        assert len(flushes) == 1 if chunk > 64 else len(flushes) >= 3 and min(flushes[:-1]) >= 100
+    assert layers[0].sum() > 0
+    np.testing.assert_allclose(layers[1], layers[0], rtol=1e-6, atol=0.0)
