@@ -81,7 +81,8 @@ def get_light_samples(built, pbl: C.PblSettings, seed: int, cache: Path, threads
     def place():
         try:
             return place_light_samples(built, pbl.surface_samples, pbl.segments_per_beam,
-                                       pbl.max_internal_reflections, pbl.max_layers, seed, threads, progress)
+                                       pbl.max_internal_reflections, pbl.max_layers, seed, threads, progress,
+                                       in_space_order=True)
         except ValueError as e:
             raise PbvolError(f"place-samples: {e}") from None
 

@@ -67,14 +67,15 @@ def test_refracting_sphere_beams_stay_inside_through_internal_reflections(tmp_pa
     """With eta 1.5 beams refract in and reflect internally: every segment lies inside the sphere, and reflected
     passes exist (more segments than beams x segments per beam)."""
     bs = build(tmp_path, _sphere(1.5))
-    ls = place_light_samples(bs, 5000, 8, 8, 8, 1)
+    ls = place_light_samples(bs, 5000, 8, 8, 8, 1, in_space_order=True)
     ends = ls.v_start + ls.v_len[:, None] * ls.v_dir
     assert np.all(np.linalg.norm(ls.v_start, axis=1) < 1.0 + 1e-3) and np.all(np.linalg.norm(ends, axis=1) < 1.0 + 1e-3)
     beams = np.sum(ls.s_irradiance.sum(1) > 0)
     assert len(ls.v_start) > 8 * beams
     assert len(outer_layer_surfaces(bs)) == 1
     _check_planes(ls, lambda c: 1.0 - np.linalg.norm(c, axis=1))
-    # stored along a Morton curve through the segments' centres (the octrees then read neighbours side by side)
+    # stored along a Morton curve through the segments' centres, as the cached sets are (the octrees then read
+    # neighbours side by side)
     centres = ls.v_start + 0.5 * ls.v_len[:, None] * ls.v_dir
     assert np.array_equal(morton_order(centres), np.arange(len(centres)))
     step = np.linalg.norm(np.diff(centres, axis=0), axis=1)
