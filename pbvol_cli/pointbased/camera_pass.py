@@ -399,6 +399,49 @@ def _channel_max(a):
     return np.maximum(np.maximum(a[:, 0], a[:, 1]), a[:, 2])
 
 
+@njit(cache=True)
+def add_rows(target, index, values):
+    """target[index[j]] += values[j] for each row j in order (3 channels): np.add.at's sums, and np.bincount's
+    into a layer, at a fraction of their cost for the small wavefronts of a camera batch (both cost a pass over
+    the whole image, or were slow)."""
+    for j in range(index.shape[0]):
+        for c in range(3):
+            target[index[j], c] += values[j, c]
+
+
+@njit(cache=True)
+def _next_rays(children, ng, depth, pixel, evm, path, kpaths, rng, min_beta):
+    """The next generation of camera rays: the children (Children, slot 2 i + 1 the transmitted child of ray i)
+    that exist and carry more than min_beta in some channel, with what they inherit from their parent ray i (the
+    surface normal ng there, the depth + 1, pixel, evm, path, kpaths and the random state, turned per slot).
+    Returns (slots, pos, dir, beta, medium, state, depth, pixel, evm, path, kpaths, n_start, rng)."""
+    beta = children.beta
+    n = 0
+    slots = np.empty(beta.shape[0], np.int64)
+    for s in range(beta.shape[0]):
+        if children.ok[s] and max(beta[s, 0], max(beta[s, 1], beta[s, 2])) > min_beta:
+            slots[n] = s
+            n += 1
+    slots = slots[:n]
+    o_pos, o_dir, o_beta, o_start = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+    o_medium, o_state, o_depth = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
+    o_pixel, o_evm, o_path = np.empty(n, pixel.dtype), np.empty(n, np.bool_), np.empty(n, path.dtype)
+    o_kpaths, o_rng = np.empty(n, kpaths.dtype), np.empty(n, np.uint64)
+    for j in range(n):
+        s = slots[j]
+        i = s >> 1
+        for c in range(3):
+            o_pos[j, c] = children.pos[s, c]
+            o_dir[j, c] = children.dir[s, c]
+            o_beta[j, c] = beta[s, c]
+            o_start[j, c] = ng[i, c]  # a child leaves the surface its parent met
+        o_medium[j], o_state[j], o_depth[j] = children.medium[s], children.state[s], depth[i] + 1
+        o_pixel[j], o_evm[j], o_path[j], o_kpaths[j] = pixel[i], evm[i], path[i], kpaths[i]
+        o_rng[j] = rng[i] ^ (np.uint64(0x9E37) * np.uint64(s % 2 + 1))
+    return (slots, o_pos, o_dir, o_beta, o_medium, o_state, o_depth, o_pixel, o_evm, o_path, o_kpaths, o_start,
+            o_rng)
+
+
 def _roulette(ms, beta, kpaths, u, threshold: float):
     """The paths of ms that evaluate a term, those of weight beta_max below `threshold` with probability
     beta_max / threshold (u: a uniform number per path), and the weights they evaluate it with (beta divided by
@@ -441,11 +484,12 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
         light_hits(bs.lights, pos, dirs, t, tl, li, np.full(len(pos), -1, np.int64))
         tev = np.minimum(t, tl)
         inside = np.flatnonzero((medium >= 0) & np.isfinite(tev))
-        contrib = np.zeros((len(pos), 4, 3))
         # the boundary planes of the segments that evaluate the medium (the kernels read no other row)
         need = inside[evm[inside]]
-        planes = np.zeros((len(pos), PLANE_COLS)) if len(need) else None
+        planes = contrib = None
         if len(need):
+            contrib = np.zeros((len(pos), 4, 3))  # medium terms per ray: zero but in rows of need
+            planes = np.zeros((len(pos), PLANE_COLS))
             planes[need] = segment_planes(pos[need], dirs[need], t[need], n_start[need], ng[need])
         for m in np.unique(medium[inside]):
             sub = inside[medium[inside] == m]
@@ -477,7 +521,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                     cb3 = np.zeros((len(pos), 3, 3))
                     eval_segments(pool, threads, evb, pos, dirs, beta_b, tev, rng, med, bounced.kernel, settings_b,
                                   cb3, state >> 2, planes, cache_b, roulette_rng)
-                    contrib[:, LAYER_BOUNCED] += cb3[:, 0] + cb3[:, 1] + cb3[:, 2]  # numpy's 3-wide sum is slow
+                    contrib[evb, LAYER_BOUNCED] += cb3[evb, 0] + cb3[evb, 1] + cb3[evb, 2]  # (the rows it wrote)
             if entry is not None:
                 _add_entry_term(entry, int(m), sub[evm[sub] & (entered[sub] > 0)], pos, beta, kpaths, entered,
                                 pixel, npix, layers)
@@ -499,8 +543,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                 beta[sub] *= np.exp(-sum(bs.medium_sigmas(m))[None, :] * tev[sub, None])
         if len(need):  # contrib is zero where no segment evaluated the medium
             for c, name in zip((LAYER_SINGLE, LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_BOUNCED), COMPONENTS):
-                for ch in range(3):
-                    layers[name][:, ch] += np.bincount(pixel, weights=contrib[:, c, ch], minlength=npix)
+                add_rows(layers[name], pixel[need], contrib[need, c])
         k = len(pos)
         emit = np.zeros((k, 3))
         children = Children(np.zeros((2 * k, 3)), np.zeros((2 * k, 3)), np.zeros((2 * k, 3)),
@@ -517,25 +560,18 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
         if len(sidx) and segment is not None:  # through null boundaries and the media (heterogeneous ones too)
             tr = segment.shadow(caster, shadows.pos[sidx], shadows.dir[sidx], shadows.dist[sidx],
                                 sidx % len(bs.lights), medium[sidx // len(bs.lights)])
-            np.add.at(emit, sidx // len(bs.lights), shadows.contrib[sidx] * tr)
+            add_rows(emit, sidx // len(bs.lights), shadows.contrib[sidx] * tr)
         elif len(sidx):
             vis = sidx[visible(caster, bs, shadows.pos[sidx], shadows.dir[sidx], shadows.dist[sidx],
                                sidx % len(bs.lights))]
-            np.add.at(emit, vis // len(bs.lights), shadows.contrib[vis])
-        for ch in range(3):
-            layers["surface"][:, ch] += np.bincount(pixel, weights=emit[:, ch], minlength=npix)
-            path_surface[:, ch] += np.bincount(path, weights=emit[:, ch], minlength=n)
-        # the children kept, by slot (indices: numpy's boolean indexing finds them anew for every array)
-        slots = np.flatnonzero(children.ok & (_channel_max(children.beta) > 1e-5))
-        parent = slots >> 1
+            add_rows(emit, vis // len(bs.lights), shadows.contrib[vis])
+        add_rows(layers["surface"], pixel, emit)
+        add_rows(path_surface, path, emit)
+        parent_dirs, parent_surf, parent_medium = dirs, surf, medium
+        slots, pos, dirs, beta, medium, state, depth, pixel, evm, path, kpaths, n_start, rng = _next_rays(
+            children, ng, depth, pixel, evm, path, kpaths, rng, 1e-5)
         if entry is not None:
-            entered = _entered(bs.surfaces, slots, parent, surf, dirs, ng, medium, children.medium[slots])
-        pos, dirs, beta = children.pos[slots], children.dir[slots], children.beta[slots]
-        medium, state = children.medium[slots], children.state[slots]
-        depth, pixel, evm, path = depth[parent] + 1, pixel[parent], evm[parent], path[parent]
-        kpaths = kpaths[parent]
-        n_start = ng[parent]  # a child leaves the surface its parent met
-        rng = rng[parent] ^ (np.uint64(0x9E37) * (slots % 2 + 1).astype(np.uint64))
+            entered = _entered(bs.surfaces, slots, slots >> 1, parent_surf, parent_dirs, ng, parent_medium, medium)
     return path_surface
 
 

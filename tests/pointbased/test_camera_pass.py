@@ -8,8 +8,8 @@ import pytest
 from conftest import camera, medium_sphere_scene, write_scene
 from pbvol_cli.imageio import read_exr, read_layers
 from pbvol_cli.pipeline.render import RenderOptions, render_scene
-from pbvol_cli.pointbased.camera_pass import (AUTO_MAX_PATHS, PASS_COST_RATIO, PixelStatistics, auto_surface_paths,
-                                              pass_paths)
+from pbvol_cli.pointbased.camera_pass import (AUTO_MAX_PATHS, PASS_COST_RATIO, PixelStatistics, add_rows,
+                                              auto_surface_paths, pass_paths)
 
 
 @pytest.mark.parametrize("light", ["quad", "sphere"])
@@ -225,3 +225,15 @@ def test_single_scattering_deferred_over_batches_is_the_same_flushed_often(tmp_p
         assert len(flushes) == 1 if chunk > 64 else len(flushes) >= 3 and min(flushes[:-1]) >= 100
     assert layers[0].sum() > 0
     np.testing.assert_allclose(layers[1], layers[0], rtol=1e-6, atol=0.0)
+
+
+def test_add_rows_sums_repeated_rows_in_order_as_numpy_add_at():
+    rng = np.random.default_rng(5)
+    index = rng.integers(0, 7, 200)
+    values = rng.normal(size=(200, 3)) * 10.0 ** rng.integers(-8, 8, (200, 1))
+    expected, got = np.ones((7, 3)), np.ones((7, 3))
+    np.add.at(expected, index, values)
+    add_rows(got, index, values)
+    assert np.array_equal(got, expected)  # the same additions in the same order
+    add_rows(got, index[:0], values[:0])
+    assert np.array_equal(got, expected)
