@@ -457,8 +457,8 @@ def _roulette(ms, beta, kpaths, u, threshold: float):
 def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samples, evm, kpaths, npix, settings,
                  settings_b, pbl, layers, single, entry=None, segment=None):
     """Camera paths (sample samples[i] of pixel pixels[i]; `done` paths traced before them in this render), traced to
-    the end, added into layers; the lights' single scattering (where it needs no random points: no diffuse bounce
-    before) into single (gather.DeferredSingle), which the caller flushes into layers["single"]. Path i evaluates
+    the end, added into layers; the lights' single scattering into single (gather.DeferredSingle), which the caller
+    flushes into layers["single"]. Path i evaluates
     the medium where evm[i], its medium terms weighted kpaths[i] (its pixel's path count in this pass), and the
     entry term (render_pbl) where it enters a medium. Returns each path's surface light (n, 3)."""
     n = len(pixels)
@@ -505,12 +505,10 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                 ev, beta_ev = _roulette(ms, beta, kpaths, u, pbl.roulette)
                 if settings.single:
                     ev_s, beta_s = _roulette(ms, beta, kpaths, u, pbl.roulette_single)
-                    diffuse = (state >> 2)[ev_s] > 0  # after a diffuse bounce: random points, evaluated now
-                    eval_segments(pool, threads, ev_s[diffuse], pos, dirs, beta_s, tev, rng, med, lit.kernel,
-                                  settings._replace(double=False, multiple=False), contrib, state >> 2, planes, cache,
-                                  roulette_rng)
-                    single.add(int(m), lit.kernel, med, ev_s[~diffuse], pos, dirs, beta_s, tev, rng, settings.kmax,
-                               planes, pixel)
+                    # kmax points a segment, kmax_diffuse random ones after a diffuse bounce (as gather._segment)
+                    diffuse = (state >> 2)[ev_s] > 0
+                    for part, kmax in ((ev_s[diffuse], settings.kmax_diffuse), (ev_s[~diffuse], settings.kmax)):
+                        single.add(int(m), lit.kernel, med, part, pos, dirs, beta_s, tev, rng, kmax, planes, pixel)
                 if settings.double or settings.multiple:
                     eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, med, lit.kernel,
                                   settings._replace(single=False), contrib, state >> 2, planes, cache, roulette_rng)

@@ -151,7 +151,8 @@ class DeferredSingle:
         return self.count >= DEFERRED_POINTS
 
     def add(self, m: int, vs, med, idx, pos, dirs, beta, tseg, rng, kmax: int, planes, pixel):
-        """The kmax points of each segment idx (no diffuse bounce before it) in medium m, for pixels pixel[idx]."""
+        """The kmax points of each segment idx in medium m (as _segment draws them: kmax_diffuse after a diffuse
+        bounce), for pixels pixel[idx]."""
         if len(idx) == 0:
             return
         pts = scattered_points(idx, pos, dirs, beta, tseg, rng, med, kmax, planes)

@@ -54,10 +54,10 @@ def test_spatial_order_is_a_permutation_that_keeps_neighbours_together():
 
 @pytest.mark.parametrize("grid_from", [0.0, np.inf])
 def test_deferred_single_scattering_adds_what_the_segments_would(monkeypatch, grid_from):
-    """Single scattering drawn segment by segment in two path depths (DeferredSingle.add) and evaluated at the
-    batch's end, sample by sample (grid_from 0) or point by point (inf), against each segment's own evaluation
-    (gather._segment): the same points (each segment's random number drawn as there) and sums per pixel, two
-    segments sharing a pixel."""
+    """Single scattering drawn segment by segment in two path depths (DeferredSingle.add; kmax_diffuse points
+    after a diffuse bounce) and evaluated at the batch's end, sample by sample (grid_from 0) or point by point
+    (inf), against each segment's own evaluation (gather._segment): the same points (each segment's random number
+    drawn as there) and sums per pixel, two segments sharing a pixel."""
     monkeypatch.setattr(single_module, "POINTS_PER_SAMPLE_FOR_GRID", grid_from)
     rng = np.random.default_rng(9)
     vs = random_volume_samples(rng, 2000)
@@ -69,15 +69,18 @@ def test_deferred_single_scattering_adds_what_the_segments_would(monkeypatch, gr
     planes = segment_planes(pos, dirs, tseg, None, None)
     streams = rng.integers(1, 2 ** 62, n).astype(np.uint64)
     # single with double scattering: every segment point by point (_segment), its single scattering at the kmax
-    # points of the segment's first random number
-    settings = GatherSettings(2, 8, 0.02, True, True, False, 1, 1)
+    # points of the segment's first random number, kmax_diffuse after a diffuse bounce (every third segment)
+    settings = GatherSettings(2, 8, 0.02, True, True, False, 1, 3)
     each = np.zeros((n, 4, 3))
-    eval_segments(None, 1, np.arange(n), pos, dirs, beta, tseg, streams.copy(), med, vs, settings, each,
-                  np.zeros(n, np.int64), planes)
+    diffuse = (np.arange(n) % 3 == 0).astype(np.int64)
+    eval_segments(None, 1, np.arange(n), pos, dirs, beta, tseg, streams.copy(), med, vs, settings, each, diffuse,
+                  planes)
     pixel = np.arange(n) // 2
     deferred, layer, rng_d = DeferredSingle(), np.zeros((n // 2, 3)), streams.copy()
     for depth in (np.arange(0, n, 2), np.arange(1, n, 2)):
-        deferred.add(0, vs, med, depth, pos, dirs, beta, tseg, rng_d, settings.kmax, planes, pixel)
+        after = diffuse[depth] > 0
+        deferred.add(0, vs, med, depth[after], pos, dirs, beta, tseg, rng_d, settings.kmax_diffuse, planes, pixel)
+        deferred.add(0, vs, med, depth[~after], pos, dirs, beta, tseg, rng_d, settings.kmax, planes, pixel)
     deferred.flush(None, 1, layer, n // 2)
     expected = np.zeros((n // 2, 3))
     np.add.at(expected, pixel, each[:, LAYER_SINGLE])
