@@ -398,6 +398,8 @@ class PblSettings(Strict):
     kmax_diffuse: Int = Field(1, ge=1, le=64, description="random points per medium segment after a diffuse bounce")
     light_sets: Int = Field(0, ge=0, le=4096, description="independent light-sample sets the spp passes cycle through "
                             "(0: a new set every pass; 1: the cached set only)")
+    bounced_passes: Int = Field(4, ge=1, le=4096, description="passes that share one set of bounced samples, built "
+                                "from the light samples of the first of them (1: every pass its own)")
     roulette: Num = Field(0.1, ge=0, description="camera branches of weight below this evaluate the medium's "
                           "smooth terms (double, multiple, bounced; in a ray-marched medium every term) with "
                           "probability weight / roulette (0: always)")

@@ -2,7 +2,8 @@
 
 Pass 0 uses the cached light samples (pipeline/samples.py); every later pass draws a fresh set (seed + pass, not
 cached; `light_sets` bounds them), so that the light side's sampling noise (single beams visible as streaks)
-averages out over passes like the camera side's. Each set's bounced light (bounced.py) is built from it.
+averages out over passes like the camera side's. The bounced light (bounced.py) is built from the light samples of
+every `bounced_passes`-th pass (seed + that pass) and serves the passes up to the next.
 """
 
 from __future__ import annotations
@@ -50,27 +51,51 @@ def render_passes(built: BuiltScene, samples, tables: dict, pbl, seed: int, spp:
         samples = samples.pop()
     has_medium = samples is not None
 
+    def light_samples(p: int):
+        """Pass p's LightSamples: the cached set, or one placed with seed + its set's index (light_sets)."""
+        k = 0 if pbl.light_sets == 1 else (p % pbl.light_sets if pbl.light_sets > 1 else p)
+        if k == 0:
+            return samples
+        t = time.perf_counter()
+        placed = place_light_samples(built, pbl.surface_samples, pbl.segments_per_beam,
+                                     pbl.max_internal_reflections, pbl.max_layers, seed + k, threads)
+        timings["pass_samples_s"] += time.perf_counter() - t
+        return placed
+
+    def lit_sets(current) -> dict:
+        return {m: SampleSet(current, m, built.media, expanded[m], pbl.beam_width) for m in expanded}
+
+    held = {}  # "lit": the one light-sample set's SampleSets (light_sets 1); "bounced": (first pass, {m: set})
+
     def media_for_pass(p: int) -> dict:
         nonlocal samples
         if not has_medium:
             return {}
-        current = samples
-        if p > 0 and pbl.light_sets != 1 and (pbl.light_sets == 0 or p < pbl.light_sets):
+        if pbl.light_sets == 1:  # the same samples every pass: their octrees built once
+            current = samples
+            lit = held.setdefault("lit", lit_sets(samples))
+        else:
+            current = light_samples(p)
+            lit = lit_sets(current)
+        # the bounced samples of passes g0 .. g0 + bounced_passes - 1, built from pass g0's light samples: the
+        # bounced light is smooth, its camera side's noise rules, and a set a pass cost a sky-lit pass a fifth of
+        # its time (docs/pbl.md)
+        g0 = p - p % pbl.bounced_passes
+        if held.get("bounced", (None,))[0] != g0:
+            held.pop("bounced", None)  # freed before the next is built
+            if g0 == p or pbl.light_sets == 1:
+                source, base = current, lit
+            else:  # a render of later passes only (render --samples) starts inside a group
+                source = light_samples(g0)
+                base = lit_sets(source)
             t = time.perf_counter()
-            current = place_light_samples(built, pbl.surface_samples, pbl.segments_per_beam,
-                                          pbl.max_internal_reflections, pbl.max_layers, seed + p, threads)
-            timings["pass_samples_s"] += time.perf_counter() - t
-        elif p > 0 and pbl.light_sets > 1:
-            return media_for_pass(p % pbl.light_sets)
+            cached = first_bounced if g0 == 0 else None  # (pass 0's set: the cached light samples, the seed)
+            held["bounced"] = (g0, {m: _bounced_set(built, source, m, base[m], expanded[m], pbl, seed + g0, threads,
+                                                    cached) for m in base})
+            timings["bounced_s"] += time.perf_counter() - t
         if p == 0 and pbl.light_sets == 0:
             samples = None  # no later pass reads them: freed once this pass's sets are built (docs/pbl.md, memory)
-        lit = {m: SampleSet(current, m, built.media, expanded[m], pbl.beam_width) for m in expanded}
-        t = time.perf_counter()
-        cached = first_bounced if p == 0 else None  # (pass 0's set: the cached light samples, the seed)
-        bounced = {m: _bounced_set(built, current, m, lit[m], expanded[m], pbl, seed + p, threads, cached)
-                   for m in lit}
-        timings["bounced_s"] += time.perf_counter() - t
-        return {m: (lit[m], bounced[m]) for m in lit}
+        return {m: (lit[m], held["bounced"][1][m]) for m in lit}
 
     image, layers, stats = render_pbl(built, media_for_pass, spp, seed, pbl, threads, progress,
                                       time_limit=time_limit, entry=entry, first_pass=first_pass)

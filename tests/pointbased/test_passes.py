@@ -52,6 +52,34 @@ def test_pbl_is_reproducible_and_each_pass_draws_new_light_samples(tmp_path):
     assert not np.array_equal(read_exr(tmp_path / "o.exr")[0], imgs[0])
 
 
+def test_bounced_samples_are_built_every_bounced_passes_passes(tmp_path, monkeypatch):
+    """A set of bounced samples serves bounced_passes passes: built at passes 0 and 4 of six (seed + that pass),
+    at every pass with bounced_passes 1; a render of passes 5 and 6 alone (render --samples) builds pass 4's, from
+    pass 4's light samples, as the whole render does."""
+    import pbvol_cli.pointbased.passes as passes
+
+    built_for = []
+    build = passes._bounced_set
+    monkeypatch.setattr(passes, "_bounced_set", lambda *a: (built_for.append(a[6]), build(*a))[1])
+    placed = []
+    place = passes.place_light_samples
+    monkeypatch.setattr(passes, "place_light_samples", lambda *a: (placed.append(a[5]), place(*a))[1])
+    scene = medium_sphere_scene(surface_samples=300, segments_per_beam=2, bounce_samples=32)
+    scene["shapes"][0].update(interface="dielectric", eta=1.5)
+    scene["camera"]["resolution"] = [6, 6]
+    seed = scene["render"]["seed"] = 7
+    for every, samples, built, places in ((4, None, [0, 4], [1, 2, 3, 4, 5]), (1, None, [0, 1, 2, 3, 4, 5],
+                                                                              [1, 2, 3, 4, 5]),
+                                          (4, (5, 7), [4], [5, 4, 6])):
+        scene["render"]["pbl"]["bounced_passes"] = every
+        built_for.clear()
+        placed.clear()
+        render_scene(write_scene(tmp_path, scene), tmp_path / "o.exr",
+                     RenderOptions(method="pbl", spp=6, samples=samples, cache_dir=tmp_path, quiet=True))
+        assert built_for == [seed + p for p in built], (every, samples, built_for)
+        assert placed == [seed + p for p in places], (every, samples, placed)
+
+
 def test_index_matched_furnace(tmp_path):
     """A non-absorbing sphere (g = 0, 2 mean free paths across its radius) in an index-matched boundary under a
     white sky renders the sky: pbl's layers together must give 1. Without the multiple term's image source the
