@@ -120,7 +120,7 @@ def single_along_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, v
     if len(idx) == 0:
         return
     pts = scattered_points(idx, pos, dirs, beta, tseg, rng, med, settings.kmax, planes)
-    s1 = single_scattering_at_points(pool, threads, vs, med, pts.pos, pts.dir, morton_order(pts.pos))
+    s1 = single_scattering_at_points(pool, threads, vs, med, pts.pos, pts.dir, morton_order)
     _add_single(pts.owner, pts.weight, s1, out)
 
 
@@ -132,7 +132,9 @@ def _add_single(owner, weight, s1, out):
             out[owner[j], LAYER_SINGLE, c] += weight[j, c] * s1[j, c]
 
 
-DEFERRED_POINTS = 1 << 19  # points a DeferredSingle holds before it evaluates them (about 40 MB of them)
+DEFERRED_POINTS = 1 << 18  # points a DeferredSingle holds before it evaluates them (20 MB of them; at 1 << 19 a
+# 512 x 512 oil-sphere render of two passes, one flush a pass, peaked at 956-962 MiB against 937-949, in the same
+# time, and at 1 << 17 at 916-929 MiB taking a twentieth longer)
 
 
 class DeferredSingle:
@@ -140,7 +142,7 @@ class DeferredSingle:
     (scattered_points: the segment's random number drawn then, as _segment draws it) and evaluated together later
     (flush): one evaluation of many points, where each depth of the paths, or each batch of them, was one of fewer.
     Sample by sample a flush costs a pass over the volume samples and the grid cells of their kernels, however few
-    the points: one flush of a pass's points at 512 x 512, where the camera's batches were four."""
+    the points: two flushes of a pass's points at 512 x 512, where the camera's batches were four."""
 
     def __init__(self):
         self.parts = {}  # medium -> (VolumeSamples, Medium, [(positions, directions, weights, pixels)])
@@ -161,13 +163,14 @@ class DeferredSingle:
 
     def flush(self, pool, threads, layer, npix: int):
         """Adds the points' single scattering times their weights into layer (npix, 3), per pixel."""
-        for vs, med, chunks in self.parts.values():
+        parts, self.parts, self.count = self.parts, {}, 0
+        for vs, med, chunks in parts.values():
             pos, wdir, weight, pixel = (np.concatenate([c[k] for c in chunks]) for k in range(4))
-            value = weight * single_scattering_at_points(pool, threads, vs, med, pos, wdir, morton_order(pos))
+            chunks.clear()  # (their memory freed before the evaluation's)
+            value = single_scattering_at_points(pool, threads, vs, med, pos, wdir, morton_order)
+            value *= weight
             for ch in range(3):
                 layer[:, ch] += np.bincount(pixel, weights=value[:, ch], minlength=npix)
-        self.parts = {}
-        self.count = 0
 
 
 def _spread_bits(v):

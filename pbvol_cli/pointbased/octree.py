@@ -141,7 +141,9 @@ def octree_skeleton(points, leaf_size: int = LEAF_SIZE) -> Octree:
     """The octree's structure over `points` (order, children, ranges); its per-node boxes and sums are left empty
     for aggregate_octree (which may take the samples already in the tree's order)."""
     n = len(points)
-    cap = 4 * n + 1024  # ample: a node that would overflow it stays a leaf
+    # every split at the box's midpoint leaves points on both sides of an axis: internal nodes have two children or
+    # more, so there are fewer nodes than 2n (a node that would overflow the cap anyway stays a leaf)
+    cap = 2 * n + 1024
     order = np.arange(n, dtype=np.int64)
     start, end = np.zeros(cap, np.int64), np.zeros(cap, np.int64)
     fc, nc = np.full(cap, -1, np.int64), np.zeros(cap, np.int64)

@@ -245,12 +245,15 @@ def single_scattering_at_points(pool, threads, vs, med, pts, wdir, order=None):
     """S_1 at the points pts (m, 3) toward wdir (m, 3), (m, 3), the cheaper way: sample by sample
     (single_scattering_by_samples) from POINTS_PER_SAMPLE_FOR_GRID points per volume sample, else point by point on
     `threads` interleaved slices of `order` (a permutation of the points that keeps neighbours together: the walks
-    then find the octree's nodes in cache; None: as given). The same sums either way."""
+    then find the octree's nodes in cache; a function of the points giving it, called only then; None: as given).
+    The same sums either way."""
     m = len(pts)
     if m >= POINTS_PER_SAMPLE_FOR_GRID * vs.start.shape[0]:
         return single_scattering_by_samples(pool, threads, vs, med, pts, wdir)
     out = np.zeros((m, 3))
     pts, wdir = np.ascontiguousarray(pts, np.float64), np.ascontiguousarray(wdir, np.float64)
+    if callable(order):
+        order = order(pts)
     idx = np.arange(m, dtype=np.int64) if order is None else np.asarray(order, np.int64)
     if pool is None or threads <= 1 or m < 64:
         _walk_points(idx, vs, med, pts, wdir, out)
