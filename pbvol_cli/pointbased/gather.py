@@ -132,9 +132,9 @@ def _add_single(owner, weight, s1, out):
             out[owner[j], LAYER_SINGLE, c] += weight[j, c] * s1[j, c]
 
 
-DEFERRED_POINTS = 1 << 18  # points a DeferredSingle holds before it evaluates them (20 MB of them; at 1 << 19 a
-# 512 x 512 oil-sphere render of two passes, one flush a pass, peaked at 956-962 MiB against 937-949, in the same
-# time, and at 1 << 17 at 916-929 MiB taking a twentieth longer)
+DEFERRED_POINTS = 1 << 17  # points a DeferredSingle holds before it evaluates them (10 MB of them): a 512 x 512
+# oil-sphere render of two passes peaked at 916-929 MiB, at 937-949 with 1 << 18 and 956-962 with 1 << 19 (one flush
+# a pass), taking a twentieth less time; a 256 x 256 pass (95 000 points) is one flush either way
 
 
 class DeferredSingle:
@@ -142,7 +142,8 @@ class DeferredSingle:
     (scattered_points: the segment's random number drawn then, as _segment draws it) and evaluated together later
     (flush): one evaluation of many points, where each depth of the paths, or each batch of them, was one of fewer.
     Sample by sample a flush costs a pass over the volume samples and the grid cells of their kernels, however few
-    the points: two flushes of a pass's points at 512 x 512, where the camera's batches were four."""
+    the points: a pass at 512 x 512, four camera batches, took 3.5 s of single scattering flushed at every batch's
+    end, 2.8 s in one flush (benchmarks/pbl_profile.py --resolution 512 --spp 1)."""
 
     def __init__(self):
         self.parts = {}  # medium -> (VolumeSamples, Medium, [(positions, directions, weights, pixels)])
