@@ -3,7 +3,7 @@
 
     .venv/bin/python benchmarks/pbl_speed.py [--scenes oil_sphere,wax_sphere,wine_glass] [--resolution 256]
         [--pbl-spp 1,2,4,8] [--volpath-spp 16,64,256,1024] [--ref-spp 16384] [--target 1e-3] [--memory-check]
-        [--out bench-out] [--threads 2] [--cache DIR]
+        [--out bench-out] [--threads 2] [--cache DIR] [--pass-only]
         [--mitsuba PYTHON --mitsuba-spp 64,256,1024 --mitsuba-integrators volpath,volpathmis] [--reuse-curves JSON]
 
 For each scene, every render in its own process (each warms numba's cache at 8x8 first, so that compiling is not
@@ -17,7 +17,8 @@ timed; peak memory is per process):
   4. with --memory-check, pbl's peak memory at 512 x 512, 1 spp;
   5. with --reuse-curves, the volpath and Mitsuba curves of an earlier run's pbl_speed.json instead (they do not
      depend on pbl's code; the reference must be the same, as it is from the cache);
-  6. with --mitsuba (the python of a venv with mitsuba installed), Mitsuba 3's error against time for each of
+  6. with --pass-only, step 2 alone (no reference): <out>/pass_cost.md;
+  7. with --mitsuba (the python of a venv with mitsuba installed), Mitsuba 3's error against time for each of
      --mitsuba-integrators on the scene as `pbvol export-mitsuba` writes it (benchmarks/mitsuba_reference.py, its
      JIT warm-up not timed), against the same reference, and pbl's speed-up to --target over the best of them
      (extrapolated like volpath's).
@@ -76,11 +77,16 @@ def main():
     ap.add_argument("--mitsuba-spp", default="64,256,1024")
     ap.add_argument("--mitsuba-integrators", default="volpath,volpathmis")
     ap.add_argument("--mitsuba-variant", default="llvm_ad_rgb")
+    ap.add_argument("--pass-only", action="store_true", help="only the pass cost: pbl at 1 pass against volpath at "
+                    "16 spp for each scene, no reference (writes <out>/pass_cost.md)")
     ap.add_argument("--reuse-curves", type=Path, help="an earlier run's pbl_speed.json: its volpath and Mitsuba "
                     "curves of the same scene and resolution are taken as they are (pbl is rendered anew)")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     res = f"{args.resolution}x{args.resolution}"
+    if args.pass_only:
+        pass_cost(args, res)
+        return
     rows = []
     for name, scene, ref, ref_noise in scenes_with_references(args, res):
         curves = {}
@@ -134,6 +140,18 @@ def main():
     table = "\n".join(lines)
     (args.out / "pbl_speed.md").write_text(table + "\n")
     print(table)
+
+
+def pass_cost(args, res: str):
+    """Step 2 alone, for every scene of args.scenes: writes <out>/pass_cost.md."""
+    lines = ["| scene | pass s | volpath 16 spp s | pass / volpath 16 |", "|---|---|---|---|"]
+    for name in args.scenes.split(","):
+        scene = ROOT / "configs" / f"{name}.toml"
+        t = {m: render(scene, m, spp, 1, res, args.threads, args.cache, args.out / f"{name}_{m}.exr")[0]["time_s"]
+             for m, spp in (("pbl", 1), ("volpath", 16))}
+        lines.append(f"| {name} | {t['pbl']:.2f} | {t['volpath']:.2f} | {t['pbl'] / t['volpath']:.1f}× |")
+        print(lines[-1], flush=True)
+    (args.out / "pass_cost.md").write_text("\n".join(lines) + "\n")
 
 
 def reused_curves(path: Path | None, name: str, res: str) -> dict:
