@@ -409,7 +409,7 @@ def add_rows(target, index, values):
             target[index[j], c] += values[j, c]
 
 
-@njit(cache=True)
+@njit(parallel=True, cache=True)
 def _next_rays(children, ng, depth, pixel, evm, path, kpaths, rng, min_beta):
     """The next generation of camera rays: the children (Children, slot 2 i + 1 the transmitted child of ray i)
     that exist and carry more than min_beta in some channel, with what they inherit from their parent ray i (the
@@ -427,7 +427,7 @@ def _next_rays(children, ng, depth, pixel, evm, path, kpaths, rng, min_beta):
     o_medium, o_state, o_depth = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
     o_pixel, o_evm, o_path = np.empty(n, pixel.dtype), np.empty(n, np.bool_), np.empty(n, path.dtype)
     o_kpaths, o_rng = np.empty(n, kpaths.dtype), np.empty(n, np.uint64)
-    for j in range(n):
+    for j in prange(n):  # each child writes its own row: the same arrays for any thread count
         s = slots[j]
         i = s >> 1
         for c in range(3):
@@ -544,11 +544,12 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                 add_rows(layers[name], pixel[need], contrib[need, c])
         k = len(pos)
         emit = np.zeros((k, 3))
-        children = Children(np.zeros((2 * k, 3)), np.zeros((2 * k, 3)), np.zeros((2 * k, 3)),
-                            np.zeros(2 * k, np.int64), np.zeros(2 * k, np.bool_), np.zeros(2 * k, np.int64))
+        # (empty: _interact sets every slot's ok flag, and the rest of the slots it keeps)
+        children = Children(np.empty((2 * k, 3)), np.empty((2 * k, 3)), np.empty((2 * k, 3)),
+                            np.empty(2 * k, np.int64), np.empty(2 * k, np.bool_), np.empty(2 * k, np.int64))
         ks = k * len(bs.lights)
-        shadows = ShadowRays(np.zeros((ks, 3)), np.zeros((ks, 3)), np.zeros(ks), np.zeros((ks, 3)),
-                             np.zeros(ks, np.bool_))
+        shadows = ShadowRays(np.empty((ks, 3)), np.empty((ks, 3)), np.empty(ks), np.empty((ks, 3)),
+                             np.empty(ks, np.bool_))
         li = np.where(tl < t, li, -1)
         # the hit distance is to what the ray meets: the emitter's where one is in front (a sphere light's side
         # is judged at that point)
