@@ -442,6 +442,15 @@ def _next_rays(children, ng, depth, pixel, evm, path, kpaths, rng, min_beta):
             o_rng)
 
 
+@njit(cache=True)
+def _attenuate(beta, idx, t, sigma_t):
+    """beta[i] *= e^(-sigma_t t[i]) per channel for the rays idx (their transmittance over t)."""
+    for j in range(idx.shape[0]):
+        i = idx[j]
+        for c in range(3):
+            beta[i, c] *= math.exp(-sigma_t[c] * t[i])
+
+
 def _roulette(ms, beta, kpaths, u, threshold: float):
     """The paths of ms that evaluate a term, those of weight beta_max below `threshold` with probability
     beta_max / threshold (u: a uniform number per path), and the weights they evaluate it with (beta divided by
@@ -538,7 +547,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                         layers[name][:, ch] += np.bincount(pixel[sub], weights=value[:, ch], minlength=npix)
                 beta[sub] *= transmittance
             else:
-                beta[sub] *= np.exp(-sum(bs.medium_sigmas(m))[None, :] * tev[sub, None])
+                _attenuate(beta, sub, tev, sum(bs.medium_sigmas(m)))
         if len(need):  # contrib is zero where no segment evaluated the medium
             for c, name in zip((LAYER_SINGLE, LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_BOUNCED), COMPONENTS):
                 add_rows(layers[name], pixel[need], contrib[need, c])
