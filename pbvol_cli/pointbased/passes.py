@@ -73,7 +73,9 @@ def render_passes(built: BuiltScene, samples, tables: dict, pbl, seed: int, spp:
             return {}
         if pbl.light_sets == 1:  # the same samples every pass: their octrees built once
             current = samples
-            lit = held.setdefault("lit", lit_sets(samples))
+            if "lit" not in held:
+                held["lit"] = lit_sets(samples)
+            lit = held["lit"]
         else:
             current = light_samples(p)
             lit = lit_sets(current)

@@ -55,7 +55,8 @@ def test_pbl_is_reproducible_and_each_pass_draws_new_light_samples(tmp_path):
 def test_bounced_samples_are_built_every_bounced_passes_passes(tmp_path, monkeypatch):
     """A set of bounced samples serves bounced_passes passes: built at passes 0 and 4 of six (seed + that pass),
     at every pass with bounced_passes 1; a render of passes 5 and 6 alone (render --samples) builds pass 4's, from
-    pass 4's light samples, as the whole render does."""
+    pass 4's light samples, as the whole render does. With light_sets 1 the one light-sample set's octrees are
+    built once."""
     import pbvol_cli.pointbased.passes as passes
 
     built_for = []
@@ -68,16 +69,21 @@ def test_bounced_samples_are_built_every_bounced_passes_passes(tmp_path, monkeyp
     scene["shapes"][0].update(interface="dielectric", eta=1.5)
     scene["camera"]["resolution"] = [6, 6]
     seed = scene["render"]["seed"] = 7
-    for every, samples, built, places in ((4, None, [0, 4], [1, 2, 3, 4, 5]), (1, None, [0, 1, 2, 3, 4, 5],
-                                                                              [1, 2, 3, 4, 5]),
-                                          (4, (5, 7), [4], [5, 4, 6])):
-        scene["render"]["pbl"]["bounced_passes"] = every
+    lit_sets = []  # the light samples' octrees built (the bounced samples' own come from namespaces)
+    sample_set = passes.SampleSet
+    monkeypatch.setattr(passes, "SampleSet", lambda *a: (lit_sets.append(hasattr(a[0], "s_pos")), sample_set(*a))[1])
+    for every, samples, light_sets, built, places, octrees in (
+            (4, None, 0, [0, 4], [1, 2, 3, 4, 5], 6), (1, None, 0, [0, 1, 2, 3, 4, 5], [1, 2, 3, 4, 5], 6),
+            (4, (5, 7), 0, [4], [5, 4, 6], 3), (4, None, 1, [0, 4], [], 1)):
+        scene["render"]["pbl"].update(bounced_passes=every, light_sets=light_sets)
         built_for.clear()
         placed.clear()
+        lit_sets.clear()
         render_scene(write_scene(tmp_path, scene), tmp_path / "o.exr",
                      RenderOptions(method="pbl", spp=6, samples=samples, cache_dir=tmp_path, quiet=True))
         assert built_for == [seed + p for p in built], (every, samples, built_for)
         assert placed == [seed + p for p in places], (every, samples, placed)
+        assert sum(lit_sets) == octrees, (every, samples, light_sets, lit_sets)  # light_sets 1: built once
 
 
 def test_index_matched_furnace(tmp_path):
