@@ -85,14 +85,15 @@ def checksum(arrays: dict) -> str:
     return h.hexdigest()
 
 
-def save_npz_atomic(path: Path, **arrays) -> None:
-    """Store arrays at path (atomically), with the file's name and the arrays' checksum."""
+def save_npz_atomic(path: Path, compress: bool = True, **arrays) -> None:
+    """Store arrays at path (atomically), with the file's name and the arrays' checksum; zip-compressed unless
+    compress is False (np.load reads either)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.{uuid.uuid4().hex[:8]}.tmp.npz")
     try:
         stamp = {KEY_FIELD: np.array(path.name), CHECKSUM_FIELD: np.array(checksum(arrays))}
-        np.savez_compressed(tmp, **arrays, **stamp)
+        (np.savez_compressed if compress else np.savez)(tmp, **arrays, **stamp)
         os.replace(tmp, path)
     finally:
         if tmp.exists():
@@ -139,25 +140,27 @@ def write_bytes_atomic(path: Path, data: bytes) -> None:
             tmp.unlink()
 
 
-def cached_entry(path: Path, required: tuple[str, ...], from_arrays, build, force: bool = False):
+def cached_entry(path: Path, required: tuple[str, ...], from_arrays, build, force: bool = False,
+                 compress: bool = True):
     """(entry, reused): the entry at path rebuilt from its arrays by from_arrays, or, when it is missing, damaged
     (load_npz's reasons, or from_arrays raises ValueError, KeyError or TypeError) or force is set, build()'s, whose
-    .arrays() are then stored atomically. A process that finds another building the entry waits for it and takes
-    its result. In a folder that cannot be written the entry is read when intact and otherwise built unstored."""
+    .arrays() are then stored atomically (compressed unless compress is False: save_npz_atomic). A process that
+    finds another building the entry waits for it and takes its result. In a folder that cannot be written the
+    entry is read when intact and otherwise built unstored."""
     path = Path(path)
     for used in _RECORDERS:
         used.add(path)
     why = unwritable(path.parent)
     if why:
         _report_unwritable(path.parent, why)
-        return _reuse_or_build(path, required, from_arrays, build, force, store=False)
+        return _reuse_or_build(path, required, from_arrays, build, force, False, compress)
     remove_stale_temporaries(path.parent)
     with open(path.with_name(f".{path.name}.lock"), "a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, also when the process is killed
-        return _reuse_or_build(path, required, from_arrays, build, force, store=True)
+        return _reuse_or_build(path, required, from_arrays, build, force, True, compress)
 
 
-def _reuse_or_build(path, required, from_arrays, build, force, store):
+def _reuse_or_build(path, required, from_arrays, build, force, store, compress):
     if not force:
         data, problem = _load(path, required)
         if data is not None:
@@ -171,7 +174,7 @@ def _reuse_or_build(path, required, from_arrays, build, force, store):
     entry = build()
     if store:
         try:
-            save_npz_atomic(path, **entry.arrays())
+            save_npz_atomic(path, compress, **entry.arrays())
         except OSError as e:  # the disk filled up or was made read-only during the build: keep the result
             _report_unwritable(path.parent, e.strerror or type(e).__name__)
     return entry, False

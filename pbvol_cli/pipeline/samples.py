@@ -64,6 +64,11 @@ def check_samples_memory(pbl: C.PblSettings, scene_path, available: int | None =
                          f"surface_samples or segments_per_beam")
 
 
+# light samples are stored uncompressed: zip shrank an oil-sphere entry of 181 MB of arrays only to 122 MB, and
+# undoing it took 1.6 s of a 1.9-s read (0.5 s uncompressed), as long as a render's pass (docs/pbl.md, section 12)
+SAMPLES_COMPRESSED = False
+
+
 def samples_path(cache: Path, built, pbl: C.PblSettings, seed: int) -> Path:
     key = key_of(kind="light-samples", geometry=geometry_hash(built), surface_samples=pbl.surface_samples,
                  segments=pbl.segments_per_beam, reflections=pbl.max_internal_reflections, layers=pbl.max_layers,
@@ -86,7 +91,8 @@ def get_light_samples(built, pbl: C.PblSettings, seed: int, cache: Path, threads
         except ValueError as e:
             raise PbvolError(f"place-samples: {e}") from None
 
-    samples, reused = cached_entry(path, LightSamples.FIELDS, LightSamples.from_arrays, place, force)
+    samples, reused = cached_entry(path, LightSamples.FIELDS, LightSamples.from_arrays, place, force,
+                                   compress=SAMPLES_COMPRESSED)
     return SamplesResult(samples, path, reused, time.perf_counter() - t0)
 
 

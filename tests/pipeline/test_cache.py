@@ -120,3 +120,39 @@ def test_a_cache_folder_that_cannot_exist_is_named(tmp_path):
     with pytest.raises(PbvolError, match="file/cache: cannot write to it"):
         cache_dir(tmp_path / "file" / "cache", for_writing=True)
     assert cache_dir(tmp_path / "file" / "cache") == tmp_path / "file" / "cache"  # read-only use: no error
+
+
+def test_an_uncompressed_entry_is_stored_unzipped_reused_and_rebuilt_when_altered(tmp_path, capsys):
+    """compress=False (the light samples': zip saves them little and costs most of their read) stores the arrays
+    as they are; the checksum still finds an altered entry."""
+    import zipfile
+
+    path = tmp_path / "entry_plain.npz"
+    builds = []
+
+    def get():
+        return cached_entry(path, ("values",), Entry.from_arrays,
+                            lambda: builds.append(1) or Entry([1.0, 2.0, 3.0]), compress=False)
+
+    entry, reused = get()
+    with zipfile.ZipFile(path) as z:
+        assert {i.compress_type for i in z.infolist()} == {zipfile.ZIP_STORED}
+    assert get()[1] and len(builds) == 1
+    _rewrite(path, values=np.array([9.0, 2.0, 3.0]))
+    entry, reused = get()
+    assert not reused and entry.values[0] == 1.0 and "rebuilding" in capsys.readouterr().err
+
+
+def test_light_samples_are_stored_uncompressed(tmp_path):
+    import zipfile
+
+    from conftest import medium_sphere_scene, write_scene
+    from pbvol_cli import config as C
+    from pbvol_cli.geometry.scene_build import build_scene
+    from pbvol_cli.pipeline.samples import get_light_samples
+
+    path = write_scene(tmp_path, medium_sphere_scene(surface_samples=300, segments_per_beam=2))
+    scene = C.load_scene(path)
+    r = get_light_samples(build_scene(scene, path), scene.render.pbl, 1, tmp_path / "c", 1)
+    with zipfile.ZipFile(r.path) as z:
+        assert {i.compress_type for i in z.infolist()} == {zipfile.ZIP_STORED}

@@ -26,11 +26,12 @@ from pbvol_cli.pipeline.cache import save_npz_atomic
 # write starts (so that half the kills can be aimed into the write). {setup} defines get(force).
 WRITER = textwrap.dedent("""
     import numpy as np
-    _save = np.savez_compressed
-    def _announced(*args, **kwargs):
-        print("writing", flush=True)
-        _save(*args, **kwargs)
-    np.savez_compressed = _announced
+    def _announced(save):
+        def write(*args, **kwargs):
+            print("writing", flush=True)
+            save(*args, **kwargs)
+        return write
+    np.savez_compressed, np.savez = _announced(np.savez_compressed), _announced(np.savez)  # (light samples: savez)
     {setup}
     print("ready", flush=True)
     while True:
@@ -114,7 +115,7 @@ def _kill_trials(kind: str, trials: int, folder):
     get(True)
     cycle = time.perf_counter() - t0  # one rebuild and write
     t0 = time.perf_counter()
-    save_npz_atomic(folder / "timing.npz", **reference)
+    save_npz_atomic(folder / "timing.npz", kind != "samples", **reference)  # (light samples: uncompressed)
     write = time.perf_counter() - t0
     rng = np.random.default_rng(11)
     outcomes = {"reused": 0, "rebuilt": 0, "temporary left": 0}
