@@ -18,6 +18,7 @@ timed; peak memory is per process):
   5. with --reuse-curves, the volpath and Mitsuba curves of an earlier run's pbl_speed.json instead (they do not
      depend on pbl's code; the reference must be the same, as it is from the cache);
   6. with --pass-only, step 2 alone (no reference): <out>/pass_cost.md;
+  6b. pbl's time at each of its renders over the time volpath takes to the same error (a second table);
   7. with --mitsuba (the python of a venv with mitsuba installed), Mitsuba 3's error against time for each of
      --mitsuba-integrators on the scene as `pbvol export-mitsuba` writes it (benchmarks/mitsuba_reference.py, its
      JIT warm-up not timed), against the same reference, and pbl's speed-up to --target over the best of them
@@ -137,9 +138,21 @@ def main():
                      f"| {f(r['speed_up_at_target'], '{:.1f}×')} | {f(r.get('pbl_512_peak_mb'), '{:.0f}')} "
                      f"| {f(r.get('mitsuba_to_target_s'), '{:.1f}')} {r.get('mitsuba_best', '')} "
                      f"| {f(r.get('speed_up_over_mitsuba'), '{:.1f}×')} |")
-    table = "\n".join(lines)
+    table = "\n".join(lines) + "\n\n" + equal_error_table(rows)
     (args.out / "pbl_speed.md").write_text(table + "\n")
     print(table)
+
+
+def equal_error_table(rows: list[dict]) -> str:
+    """For each scene and pbl render: pbl's time over the time volpath of the same run takes to pbl's error there
+    (time_to on volpath's curve, extrapolated as 1/spp): the sky-lit targets' measure, at every pass count."""
+    lines = ["| scene | pbl passes: s, relMSE | volpath s to that relMSE | pbl / volpath time |", "|---|---|---|---|"]
+    for r in rows:
+        for t, err, spp, *_ in sorted(r["curves"]["pbl"], key=lambda p: p[2]):
+            tv = time_to([p[:2] for p in r["curves"]["volpath"]], err, extrapolate=True)
+            lines.append(f"| {r['scene']} | {spp}: {t:.2f} s, {err:.5f} | {tv:.2f} | {t / tv:.2f}× |" if tv else
+                         f"| {r['scene']} | {spp}: {t:.2f} s, {err:.5f} | — | — |")
+    return "\n".join(lines)
 
 
 def pass_cost(args, res: str):
