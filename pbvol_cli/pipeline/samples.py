@@ -16,8 +16,9 @@ from pbvol_cli.pipeline.cache import cached_entry, key_of
 # 2: indirect diffuse light at the surface samples; 3: boundary planes; 4: glass walls reflect; 5-7: roulette on
 # weak reflections, planes beyond the boundary; 8: a light is not its own shadow blocker; 9: light guided by
 # reflections inside transparent layers; 11: indirect light
-# path traced (v_returned: light that scattered before it reached the sample); 12: volume samples in Morton order
-FORMAT_VERSION = 12
+# path traced (v_returned: light that scattered before it reached the sample); 12: volume samples in Morton order;
+# 13: each segment's leg (v_leg)
+FORMAT_VERSION = 13
 
 
 @dataclass

@@ -279,10 +279,12 @@ def beam_segments(caster, bs: BuiltScene, beams: Beams, segments: int, max_refle
                   advance=None) -> dict:
     """Volume samples along beams, followed through internal reflections (at most max_reflections; below
     REFLECTION_ROULETTE of the initial power by Russian roulette). Returns the arrays {start, dir, len, power,
-    area, medium, ends, plane} (SEGMENT_FIELDS); the beams' arrays are consumed."""
+    area, medium, ends, plane} (SEGMENT_FIELDS) and leg: the samples of one leg (a beam between two boundary
+    points) share an index, 0, 1, ... in the order the legs were traced; the beams' arrays are consumed."""
     p_min = REFLECTION_ROULETTE * beams.power.max(axis=1) if len(beams.power) else np.zeros(0)
-    out = {k: [] for k in SEGMENT_FIELDS}
+    out = {k: [] for k in (*SEGMENT_FIELDS, "leg")}
     alive = np.ones(len(beams.pos), np.bool_)
+    legs = 0
     for leg in range(max_reflections + 1):
         act = np.flatnonzero(alive)
         if len(act) == 0:
@@ -302,12 +304,15 @@ def beam_segments(caster, bs: BuiltScene, beams: Beams, segments: int, max_refle
         valid = o.len > 0
         for key, arr in zip(SEGMENT_FIELDS, o):
             out[key].append(arr[valid])
+        out["leg"].append((legs + np.arange(m, dtype=np.int64) // segments)[valid])  # (slots k * segments + q)
+        legs += len(act)
         if advance is not None:
             advance()
     empty = {"start": (0, 3), "dir": (0, 3), "power": (0, 3), "plane": (0, PLANE_COLS)}
     cat = {k: (np.concatenate(v) if v else np.zeros(empty.get(k, 0))) for k, v in out.items()}
     cat["medium"] = cat["medium"].astype(np.int64)
     cat["ends"] = cat["ends"].astype(np.int64)
+    cat["leg"] = cat["leg"].astype(np.int64)
     return cat
 
 

@@ -48,9 +48,11 @@ class LightSamples:
     #                      (volume_samples: ENTRY_N, ENTRY_Q, EXIT_N, EXIT_Q), n . x = q on each, n outward
     v_returned: np.ndarray  # (m,) int8: 1 where the light scattered in a medium before it reached the surface
     #                         sample (the medium's light that left it and a table sends back): the bounced layer's
+    v_leg: np.ndarray  # (m,) the leg each segment belongs to (one beam between two boundary points; single
+    #                    scattering takes a leg's segments as one cylinder: single_scattering._splat_legs)
 
     FIELDS = ("s_pos", "s_nrm", "s_surface", "s_area", "s_irradiance", "v_start", "v_dir", "v_len", "v_power",
-              "v_area", "v_medium", "v_ends", "v_plane", "v_returned")
+              "v_area", "v_medium", "v_ends", "v_plane", "v_returned", "v_leg")
 
     def arrays(self) -> dict:
         return {k: getattr(self, k) for k in self.FIELDS}
@@ -61,7 +63,8 @@ class LightSamples:
         n, m = len(ls.s_pos), len(ls.v_start)
         shapes_ok = (ls.s_nrm.shape == (n, 3) and ls.s_irradiance.shape == (n, 3) and ls.v_dir.shape == (m, 3)
                      and ls.v_power.shape == (m, 3) and len(ls.v_len) == m and len(ls.v_area) == m
-                     and len(ls.v_ends) == m and ls.v_plane.shape == (m, PLANE_COLS) and len(ls.v_returned) == m)
+                     and len(ls.v_ends) == m and ls.v_plane.shape == (m, PLANE_COLS) and len(ls.v_returned) == m
+                     and ls.v_leg.shape == (m,))
         if not shapes_ok or not all(np.all(np.isfinite(getattr(ls, k))) for k in ("v_start", "v_power", "v_len")):
             raise ValueError("inconsistent light samples")
         return ls
@@ -238,6 +241,7 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
             parts.append(beam_segments(caster, bs, b, seg, max_reflections, seed + s_off, adv))
     finally:
         caster.close()
+    parts[1]["leg"] = parts[1]["leg"] + (int(parts[0]["leg"].max()) + 1 if len(parts[0]["leg"]) else 0)
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     flag = np.concatenate([np.zeros(len(parts[0]["len"]), np.int8), np.ones(len(parts[1]["len"]), np.int8)])
     if in_space_order:
@@ -248,4 +252,4 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
         progress(steps, steps)
     return LightSamples(light.pos, light.nrm, light.sid, np.full(len(light.pos), light.area), light.irradiance,
                         cat["start"], cat["dir"], cat["len"], cat["power"],
-                        cat["area"], cat["medium"], cat["ends"], cat["plane"], flag)
+                        cat["area"], cat["medium"], cat["ends"], cat["plane"], flag, cat["leg"])

@@ -26,15 +26,19 @@ from pbvol_cli.pointbased.octree import aggregate_octree, node_lobes, octree_ske
 END_EXTENSION = 3.0  # kernel radii by which segments on the boundary are continued (single scattering)
 
 # The bundles the numba kernels take (namedtuples: numba passes them by value and reads fields by name).
+NO_LEGS = (np.zeros(0, np.int64), np.zeros((0, 2)))  # leg_first, leg_span of a set without legs
 VolumeSamples = namedtuple("VolumeSamples", ["tree", "start", "dir", "len", "power", "area", "centre", "scat", "rb",
-                                             "ends", "plane", "tables", "r_near", "lobes", "size"],
-                           defaults=(0.0,))
+                                             "ends", "plane", "tables", "r_near", "lobes", "size", "leg_first",
+                                             "leg_span"],
+                           defaults=(0.0, *NO_LEGS))
 VolumeSamples.__doc__ = """A medium's volume samples for the kernels: tree (Octree.arrays()), per-sample start (m, 3),
 dir (m, 3), len (m,), power (m, 3) at the start, area (m,) of single scattering's kernel disc, centre (m, 3), scat
 (m, 3) scattered power, rb (m,) beam radius, ends (m,) (1: starts on the boundary, 2: ends there), plane (m, PLANE_COLS)
 boundary planes; tables: the medium's three MSTable.render_args() (R, G, B); r_near: double scattering's
 near-field radius (scene units); lobes: the tree's octree.node_lobes (the light cut's descents); size: the smallest
-side of the box around the segments (the medium's size along its thinnest axis, scene units; 0: unknown)."""
+side of the box around the segments (the medium's size along its thinnest axis, scene units; 0: unknown);
+leg_first (L,), leg_span (L, 2): each leg's first sample and the stretch of its axis that its kernel cylinder spans,
+from that sample's start (leg_table; empty: the samples are not grouped in legs)."""
 Medium = namedtuple("Medium", ["sigma_a", "sigma_s", "phase", "g"])
 Medium.__doc__ = """A homogeneous medium for the kernels: sigma_a, sigma_s (3,) in 1/scene unit, phase kind, g."""
 Query = namedtuple("Query", ["x", "y", "z", "wx", "wy", "wz", "plane"])
@@ -158,6 +162,43 @@ def _in_tree_order(idx, order, start, dirs, length, power, area, ends, plane, ce
     return o_start, o_dir, o_len, o_power, o_area, o_centre, o_scat, o_rb, o_ends, o_plane, o_lo, o_hi
 
 
+@njit(cache=True)
+def leg_table(legs, start, dirs, length, area, ends):
+    """The legs of samples (in their stored order) whose leg indices are legs (n,): (leg_first (L,), leg_span (L, 2)).
+    A leg's samples lie end to end on one line, their power falling as e^(-sigma_t t) from the first's start
+    (beams._segment_beam), so that a point's share of S_1 is the same formula whichever of them holds it
+    (single_scattering.beam_share): the leg is one kernel cylinder, from its first sample's start over
+    leg_span = (t_lo, t_hi), continued by END_EXTENSION kernel radii at a boundary end (axial_extent's)."""
+    n = legs.shape[0]
+    top = -1
+    for k in range(n):
+        top = max(top, legs[k])
+    dense = np.full(top + 1, -1, np.int64)
+    count = 0
+    lid = np.empty(n, np.int64)
+    for k in range(n):  # the legs present, numbered in order of appearance
+        if dense[legs[k]] < 0:
+            dense[legs[k]] = count
+            count += 1
+        lid[k] = dense[legs[k]]
+    first = np.full(count, -1, np.int64)
+    s0, s1 = np.full(count, np.inf), np.full(count, -np.inf)
+    flags = np.zeros(count, np.int64)
+    for k in range(n):
+        leg = lid[k]
+        a = start[k, 0] * dirs[k, 0] + start[k, 1] * dirs[k, 1] + start[k, 2] * dirs[k, 2]  # along the line
+        if a < s0[leg]:
+            s0[leg], first[leg] = a, k
+        s1[leg] = max(s1[leg], a + length[k])
+        flags[leg] |= ends[k]
+    span = np.empty((count, 2))
+    for leg in range(count):
+        ext = END_EXTENSION * math.sqrt(area[first[leg]] / math.pi)
+        span[leg, 0] = -ext if flags[leg] & 1 else 0.0
+        span[leg, 1] = s1[leg] - s0[leg] + (ext if flags[leg] & 2 else 0.0)
+    return first, span
+
+
 class SampleSet:
     """One medium's volume samples prepared for the kernels (see the module docstring); .kernel is the bundle."""
 
@@ -182,13 +223,16 @@ class SampleSet:
         start, dirs, length, power, area, centre, self.scat, beam_radius, ends, plane, box_lo, box_hi = \
             _in_tree_order(idx, skeleton.order, *arrays, np.ascontiguousarray(samples.v_plane), centre,
                            float(beam_width), st, albedo)
+        legs = NO_LEGS
+        if getattr(samples, "v_leg", None) is not None and len(idx):
+            legs = leg_table(samples.v_leg[idx[skeleton.order]], start, dirs, length, area, ends)
         skeleton.order = np.arange(len(idx), dtype=np.int64)
         tree = aggregate_octree(skeleton, centre, box_lo, box_hi, dirs, self.scat)
         self.count = len(idx)
         r_near = near_field_radius(start, dirs, length, beam_radius, (lo, hi), float(np.max(st)))
         self.kernel = VolumeSamples(tree.arrays(), start, dirs, length, power, area, centre, self.scat, beam_radius,
                                     ends, plane, tuple(tables), r_near, node_lobes(tree.arrays()),
-                                    float(np.min(hi - lo)) if len(idx) else 0.0)
+                                    float(np.min(hi - lo)) if len(idx) else 0.0, *legs)
 
 
 def scattered_share(base: SampleSet, other: SampleSet) -> float:

@@ -80,6 +80,28 @@ def test_refracting_sphere_beams_stay_inside_through_internal_reflections(tmp_pa
     assert np.array_equal(morton_order(centres), np.arange(len(centres)))
     step = np.linalg.norm(np.diff(centres, axis=0), axis=1)
     assert np.median(step) < 0.1 * np.median(np.linalg.norm(centres - centres[::-1], axis=1))
+    _check_legs(ls, 8, bs.media[0, :3] + bs.media[0, 3:6])
+
+
+def _check_legs(ls, segments: int, sigma_t):
+    """Each leg (v_leg) is at most `segments` samples end to end on one line, one beam from the boundary to the
+    boundary: one start on it (ends & 1), one end, the same direction, cross-section and planes, and each
+    sample's power its start's e^(-sigma_t t) along the leg (what single scattering's legs rely on)."""
+    order = np.lexsort((np.einsum("ij,ij->i", ls.v_start, ls.v_dir), ls.v_leg))
+    leg, start, d, length = ls.v_leg[order], ls.v_start[order], ls.v_dir[order], ls.v_len[order]
+    first = np.r_[True, leg[1:] != leg[:-1]]
+    last = np.r_[leg[1:] != leg[:-1], True]
+    counts = np.diff(np.r_[np.flatnonzero(first), len(leg)])
+    assert counts.max() <= segments and (counts > 1).any()
+    assert np.array_equal(first, (ls.v_ends[order] & 1) > 0) and np.array_equal(last, (ls.v_ends[order] & 2) > 0)
+    inner = ~last  # a sample and the next of its leg: end to end, the same line, kernel and planes
+    nxt = np.flatnonzero(inner) + 1
+    np.testing.assert_allclose(start[inner] + length[inner, None] * d[inner], start[nxt], atol=1e-9)
+    assert np.array_equal(d[inner], d[nxt]) and np.array_equal(ls.v_area[order][inner], ls.v_area[order][nxt])
+    assert np.array_equal(ls.v_plane[order][inner], ls.v_plane[order][nxt])
+    power = ls.v_power[order]
+    np.testing.assert_allclose(power[nxt], power[inner] * np.exp(-np.outer(length[inner], sigma_t)), rtol=1e-9,
+                               atol=1e-15 * power.max())
 
 
 def _check_planes(ls, depth):

@@ -132,3 +132,37 @@ def test_sample_by_sample_sums_equal_the_walk(monkeypatch, max_cells):
     assert np.all(far[10] == 0.0)
     np.testing.assert_allclose(single_scattering_by_samples(None, 1, vs, med, pts[3:4], w[3:4]), walk[3:4],
                                rtol=1e-12, atol=0.0)  # a grid of one point
+
+
+def test_legs_give_the_segments_sums(tmp_path):
+    """Light samples placed in a refracting sphere (legs of 6 segments through internal reflections): single
+    scattering taken leg by leg (volume_samples.leg_table, _splat_legs) against segment by segment and against
+    the walk, at points in and around the sphere: the same sums to rounding; bit-identical on one thread and
+    three."""
+    from pbvol_cli.pointbased.light_samples import place_light_samples
+    from pbvol_cli.pointbased.volume_samples import NO_LEGS, SampleSet, medium_params
+
+    scene = {"camera": {"position": [0, 0, 4], "look_at": [0, 0, 0], "fov": 40, "resolution": [8, 8]},
+             "lights": [{"type": "directional", "direction": [0.3, -1, 0.2], "irradiance": 2.0}],
+             "shapes": [{"type": "sphere", "radius": 1.0, "interface": "dielectric", "eta": 1.5,
+                         "medium": {"sigma_a": 0.3, "sigma_s": [0.5, 1.0, 2.0], "g": 0.6}}]}
+    bs = build(tmp_path, scene)
+    tables = tuple(empty_table().render_args() for _ in range(3))
+    vs = SampleSet(place_light_samples(bs, 3000, 6, 4, 8, 1, in_space_order=True), 0, bs.media, tables, 2.0).kernel
+    assert 0 < len(vs.leg_first) < len(vs.len) / 3  # mostly whole legs of 6
+    med = medium_params(bs.media, 0)
+    rng = np.random.default_rng(3)
+    pts = np.concatenate([rng.uniform(-1.1, 1.1, (3000, 3)), rng.normal(0.2, 0.03, (300, 3))])
+    w = rng.normal(size=(len(pts), 3))
+    w /= np.linalg.norm(w, axis=1)[:, None]
+    legs = single_scattering_by_samples(None, 1, vs, med, pts, w)
+    segments = single_scattering_by_samples(None, 1, vs._replace(leg_first=NO_LEGS[0], leg_span=NO_LEGS[1]), med,
+                                            pts, w)
+    assert (legs[:, 0] > 0).mean() > 0.5
+    np.testing.assert_allclose(legs, segments, rtol=1e-12, atol=1e-15 * segments.max())
+    walk = np.zeros((len(pts), 3))
+    for j in range(0, len(pts), 7):
+        single_scattering(vs, med, Query(*pts[j], *w[j], NO_PLANE), walk[j])
+    np.testing.assert_allclose(legs[::7], walk[::7], rtol=1e-12, atol=1e-15 * segments.max())
+    with ThreadPoolExecutor(3) as pool:
+        assert np.array_equal(single_scattering_by_samples(pool, 3, vs, med, pts, w), legs)
