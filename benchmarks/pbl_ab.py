@@ -4,11 +4,11 @@
     .venv/bin/python benchmarks/pbl_ab.py --scene wax_sphere [--resolution 128] [--spp 1] [--seeds 11,12]
         --set cache_cell=0 --set cache_cell=0.5 [--set 'kmax=2,cache_cell=0.5'] [--threads 2] [--cache DIR]
 
-Each --set is one variant: comma-separated [render.pbl] overrides (numbers or words). Each variant renders the
-scene once per seed (each in this process after a warm-up render, so that compiling is not timed) and prints the
-mean time per render, the noise (relMSE between two seeds' images / 2: one image's variance in relMSE units, where
-the method is unbiased) and the image and layer means and noise over the seeds: a variant that keeps the means and
-lowers noise x time is the better one.
+Each --set is one variant: comma-separated [render.pbl] overrides (numbers, true/false or words). Each variant
+renders the scene once per seed (each in this process after a warm-up render, so that compiling is not timed) and
+prints the mean time per render, the noise (relMSE between two seeds' images / 2: one image's variance in relMSE
+units, where the method is unbiased) and the image and layer means and noise over the seeds: a variant that keeps
+the means and lowers noise x time is the better one.
 """
 
 from __future__ import annotations
@@ -24,6 +24,8 @@ sys.path.insert(0, str(ROOT))
 
 
 def _value(text: str):
+    if text in ("true", "false"):
+        return text == "true"
     for kind in (int, float):
         try:
             return kind(text)

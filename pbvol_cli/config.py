@@ -387,6 +387,9 @@ class PblSettings(Strict):
                                "slices cache_cell deep below the boundary, where the terms change fastest)")
     cache_directions: Int = Field(8, ge=1, le=64, description="direction bins per cube-map face for cache_cell "
                                   "(8: about 11 degrees wide)")
+    term_shares: Bool = Field(True, description="a bin evaluates the lesser of double and multiple scattering (by "
+                              "its second moment in the pass so far) at a random share of the bins, weighted by its "
+                              "inverse: unbiased, less time for the same noise (docs/pbl.md); false: every bin both")
     cut_size: Int = Field(8, ge=0, le=64, description="octree refinements per point for double and multiple scattering "
                           "(stochastic light cut: more = less noise, more time)")
     clamp: Num = Field(0.02, ge=0, description="smallest radius a source's 1/r^2 is averaged over (double "

@@ -32,7 +32,7 @@ from pbvol_cli.physics.lights import ENVIRONMENT, LIGHT_RGB, LIGHT_TYPE, emitted
 from pbvol_cli.physics.sampling import cosine_hemisphere, rand
 from pbvol_cli.pointbased.gather import (LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_SINGLE, DeferredSingle, eval_segments,
                                          gather_settings, segment_planes)
-from pbvol_cli.pointbased.radiance_cache import cache_settings
+from pbvol_cli.pointbased.radiance_cache import TermShares, cache_settings
 from pbvol_cli.pointbased.volume_samples import PLANE_COLS, medium_params, scattered_share
 from pbvol_cli.render.camera import camera_rays_for
 from pbvol_cli.render.interfaces import dielectric_fresnel, incident_side, indices, medium_beyond, shadow_ray_length
@@ -358,11 +358,12 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         surface_sq = np.zeros((npix, 3))
         per_pass = len(pixels)
         single = DeferredSingle()  # the lights' single scattering, evaluated for many batches at once
+        term_shares = {} if pbl.term_shares else None  # how often the bins evaluate double and multiple scattering
         for c0 in range(0, per_pass, chunk):
             part = slice(c0, min(c0 + chunk, per_pass))
             path_surface = _trace_batch(bs, caster, pool, threads, media_data, seed, done + c0, pixels[part],
                                         samples[part], evm[part], k[pixels[part]], npix, settings, settings_b, pbl,
-                                        acc, single, entry_p, segment_p)
+                                        acc, single, entry_p, segment_p, term_shares)
             if single.full() or part.stop == per_pass:
                 single.flush(pool, threads, acc["single"], npix)
             for ch in range(3):
@@ -463,11 +464,17 @@ def _roulette(ms, beta, kpaths, u, threshold: float):
     return ev, weight
 
 
+def _shares(term_shares, m, kind: str):
+    """The pass's TermShares of medium m's lit or bounced samples (made on first use), or None."""
+    return None if term_shares is None else term_shares.setdefault((int(m), kind), TermShares())
+
+
 def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samples, evm, kpaths, npix, settings,
-                 settings_b, pbl, layers, single, entry=None, segment=None):
+                 settings_b, pbl, layers, single, entry=None, segment=None, term_shares=None):
     """Camera paths (sample samples[i] of pixel pixels[i]; `done` paths traced before them in this render), traced to
     the end, added into layers; the lights' single scattering into single (gather.DeferredSingle), which the caller
-    flushes into layers["single"]. Path i evaluates
+    flushes into layers["single"]; term_shares: the pass's radiance_cache.TermShares by (medium, "lit" or
+    "bounced"), filled as the bins are evaluated (None: every bin evaluates every term). Path i evaluates
     the medium where evm[i], its medium terms weighted kpaths[i] (its pixel's path count in this pass), and the
     entry term (render_pbl) where it enters a medium. Returns each path's surface light (n, 3)."""
     n = len(pixels)
@@ -520,14 +527,15 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                         single.add(int(m), lit.kernel, med, part, pos, dirs, beta_s, tev, rng, kmax, planes, pixel)
                 if settings.double or settings.multiple:
                     eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, med, lit.kernel,
-                                  settings._replace(single=False), contrib, state >> 2, planes, cache, roulette_rng)
+                                  settings._replace(single=False), contrib, state >> 2, planes, cache, roulette_rng,
+                                  _shares(term_shares, m, "lit"))
                 if bounced is not None and bounced.count:
                     qb = min(1.0, scattered_share(lit, bounced) / BOUNCED_ROULETTE)
                     evb = ev[roulette_rng.random(len(ev)) < qb]
                     beta_b = beta_ev / qb
                     cb3 = np.zeros((len(pos), 3, 3))
                     eval_segments(pool, threads, evb, pos, dirs, beta_b, tev, rng, med, bounced.kernel, settings_b,
-                                  cb3, state >> 2, planes, cache_b, roulette_rng)
+                                  cb3, state >> 2, planes, cache_b, roulette_rng, _shares(term_shares, m, "bounced"))
                     contrib[evb, LAYER_BOUNCED] += cb3[evb, 0] + cb3[evb, 1] + cb3[evb, 2]  # (the rows it wrote)
             if entry is not None:
                 _add_entry_term(entry, int(m), sub[evm[sub] & (entered[sub] > 0)], pos, beta, kpaths, entered,

@@ -12,6 +12,10 @@ about a cell, not to a blocky one.
 Why this pays: a point's estimate of these terms is already noisy (the light cut is stochastic), and a pixel that
 borrows its neighbour's estimate has the same noise as with its own; the work falls by the points per bin.
 tests/pointbased/test_radiance_cache.py measures the blur against the per-point evaluation.
+
+Double and multiple scattering cost about the same at a bin, but one often carries far less light than the other
+(the oil's multiple scattering, the wax's double): the lesser is then evaluated at a random share of the bins,
+weighted by its inverse (TermShares), unbiased.
 """
 
 from __future__ import annotations
@@ -36,6 +40,41 @@ light's: smooth; the lights' own single scattering never is)."""
 SIZE_SHARE = 0.125  # bins at most this share of the medium's size wide: the light's gradient across a body is
 # linear over such a width, which a box blur keeps (1 and 2 mean free paths on a sphere 4 across blurred double
 # scattering above the noise: tests/pointbased/test_radiance_cache.py)
+
+
+TERM_SHARE_MIN = 0.125  # the least share of the bins at which a term is evaluated (its weight at most 8)
+PILOT_SHARE = 0.125  # the share of a pass's first bins that evaluates both terms, to measure them
+
+
+class TermShares:
+    """How often a camera pass's bins evaluate double and multiple scattering (one per medium and sample set,
+    made anew each pass). Evaluating a term at a share q of the bins (weighted 1 / q) adds its second moment
+    E[Y^2] (1 / q - 1) to the variance and saves (1 - q) of its cost; the two cost about the same at a bin, so the
+    noise x time is least with q in proportion to sqrt(E[Y^2]) (the classical splitting result): the term of the
+    larger second moment is always evaluated, the other at sqrt of their ratio, at least TERM_SHARE_MIN. Y is a
+    bin's contribution (its value times the bin's weight, channels summed), its moments summed over the pass's
+    bins so far, the first measured on a pilot (PILOT_SHARE of the pass's first bins evaluate both terms); a pass
+    depends on nothing before it (render --samples, merge). Measured: docs/pbl.md, section 12."""
+
+    def __init__(self):
+        self.second_moment = np.zeros(2)  # double, multiple
+
+    def measured(self) -> bool:
+        return bool(self.second_moment.max() > 0.0)
+
+    def shares(self) -> tuple[float, float]:
+        """(q_double, q_multiple) for the next bins (both 1 until a term has been seen)."""
+        m2 = self.second_moment
+        if m2.max() <= 0.0:
+            return 1.0, 1.0
+        q = np.sqrt(m2 / m2.max())
+        return float(max(TERM_SHARE_MIN, q[0])), float(max(TERM_SHARE_MIN, q[1]))
+
+    def add(self, values, w_bin, shares=(1.0, 1.0)):
+        """Bins evaluated at shares (q_double, q_multiple): values (bins, 3 layers, 3) weighted by 1 / q, w_bin (bins,
+        3) their weights. A kept bin's (Y / q)^2 times q has the expectation of Y^2 over all bins."""
+        for k, layer in enumerate((1, 2)):
+            self.second_moment[k] += shares[k] * float(np.sum((values[:, layer] * w_bin).sum(axis=1) ** 2))
 
 
 def cache_settings(pbl, single: bool = False) -> CacheSettings:
@@ -170,12 +209,44 @@ def lateral_width(cache: CacheSettings, mfp: float, vs) -> float:
     return max(min(cache.lateral * mfp, SIZE_SHARE * vs.size), cache.cell * mfp)
 
 
+def _evaluate_on_threads(pool, threads, reps, pts, rng, med, vs, settings, do_single, values):
+    """_evaluate at reps into values, the representatives dealt to threads by segment (thread_parts)."""
+    if threads <= 1 or len(reps) < 64:
+        _evaluate(reps, pts, rng, med, vs, settings, do_single, values)
+        return
+    parts = thread_parts(pts.owner[reps], threads)
+    vals = [np.zeros((len(p), 3, 3)) for p in parts]
+    list(pool.map(lambda t: _evaluate(reps[parts[t]], pts, rng, med, vs, settings, do_single, vals[t]),
+                  range(threads)))
+    for p, v in zip(parts, vals):
+        values[p] = v
+
+
+def _evaluate_shares(pool, threads, reps, which, pts, rng, med, vs, settings, do_single, values, shares, bin_rng):
+    """The bins `which` (indices into reps), each evaluating double with probability shares[0] and multiple with
+    shares[1] (bin_rng), the value weighted by the inverse: up to four groups of bins, into values."""
+    q_d, q_m = shares
+    u = bin_rng.random((len(which), 2))
+    keep_d, keep_m = u[:, 0] < q_d, u[:, 1] < q_m
+    for kd, km in ((True, True), (True, False), (False, True), (False, False)):
+        if not (kd or km or do_single):  # (neither term and no single scattering: nothing to evaluate)
+            continue
+        sel = which[(keep_d == kd) & (keep_m == km)]
+        part = np.zeros((len(sel), 3, 3))
+        _evaluate_on_threads(pool, threads, reps[sel], pts, rng, med, vs, settings._replace(double=kd, multiple=km),
+                             do_single, part)
+        part[:, 1] /= q_d
+        part[:, 2] /= q_m
+        values[sel] = part
+
+
 def shared_terms(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, cache: CacheSettings, out,
-                 planes, bin_rng):
+                 planes, bin_rng, term_shares: TermShares | None = None):
     """The smooth terms of segments idx (as gather.eval_segments would add them) into out (n, 3 layers, 3),
     evaluated once per bin (bin_keys) at a random point of it. settings: GatherSettings (its double and multiple
     flags and kmax_scattered); cache.single: single scattering shared too. bin_rng (numpy Generator): the grid's
-    shift and turn and the points chosen. Returns the number of evaluations."""
+    shift and turn, the points chosen and the bins that evaluate each term (term_shares: how often; None: every
+    bin both). Returns the number of evaluations."""
     if len(idx) == 0:
         return 0
     pts = scattered_points(idx, pos, dirs, beta, tseg, rng, med, settings.kmax_scattered, planes)
@@ -188,18 +259,23 @@ def shared_terms(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settin
     group = group.ravel()
     values = np.zeros((len(reps), 3, 3))
     do_single = bool(cache.single and settings.single)
-    if threads <= 1 or len(reps) < 64:
-        _evaluate(reps, pts, rng, med, vs, settings, do_single, values)
+    w_bin = np.stack([np.bincount(group, weights=pts.weight[:, c], minlength=len(reps)) for c in range(3)], axis=1)
+    if term_shares is None or not (settings.double and settings.multiple):
+        _evaluate_on_threads(pool, threads, reps, pts, rng, med, vs, settings, do_single, values)
     else:
-        parts = thread_parts(pts.owner[reps], threads)
-        vals = [np.zeros((len(p), 3, 3)) for p in parts]
-        list(pool.map(lambda t: _evaluate(reps[parts[t]], pts, rng, med, vs, settings, do_single, vals[t]),
-                      range(threads)))
-        for p, v in zip(parts, vals):
-            values[p] = v
+        rest = np.arange(len(reps))
+        if not term_shares.measured():  # a pilot: a random share of the bins evaluates both terms
+            pilot = np.sort(bin_rng.permutation(len(reps))[:max(1, math.ceil(PILOT_SHARE * len(reps)))])
+            part = np.zeros((len(pilot), 3, 3))
+            _evaluate_on_threads(pool, threads, reps[pilot], pts, rng, med, vs, settings, do_single, part)
+            values[pilot] = part
+            term_shares.add(part, w_bin[pilot])
+            rest = np.setdiff1d(rest, pilot)
+        shares = term_shares.shares()
+        _evaluate_shares(pool, threads, reps, rest, pts, rng, med, vs, settings, do_single, values, shares, bin_rng)
+        term_shares.add(values[rest], w_bin[rest], shares)
     # the draw follows the weights' channel sum; per channel c the bin's total stays unbiased when it is scaled by
     # (w_rc / w_r) / (W_c / W): the representative's share of channel c over the bin's
-    w_bin = np.stack([np.bincount(group, weights=pts.weight[:, c], minlength=len(reps)) for c in range(3)], axis=1)
     w_rep = pts.weight[reps]
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = (w_rep / w_rep.sum(axis=1, keepdims=True)) / (w_bin / w_bin.sum(axis=1, keepdims=True))
