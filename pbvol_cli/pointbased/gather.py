@@ -107,13 +107,36 @@ def eval_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, setti
             single_along_segments(pool, threads, direct, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse,
                                   planes)
         return
-    _on_threads(pool, threads, idx[after_diffuse], pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse,
-                planes)
+    _after_diffuse(pool, threads, idx[after_diffuse], pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse,
+                   planes, term_shares, bin_rng)
     if settings.single and not cache.single:
         single_along_segments(pool, threads, direct, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse,
                               planes)
     shared_terms(pool, threads, direct, pos, dirs, beta, tseg, rng, med, vs, settings, cache, out, planes, bin_rng,
                  term_shares)
+
+
+def _after_diffuse(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes,
+                   term_shares, bin_rng):
+    """Every term of the rays idx after a diffuse bounce, point by point (_segment), double and multiple each on
+    the pass's share of the rays (term_shares: radiance_cache.TermShares, as measured on the bins; None: all),
+    weighted by its inverse (bin_rng draws which)."""
+    q_d, q_m = term_shares.shares() if term_shares is not None and settings.double and settings.multiple \
+        else (1.0, 1.0)
+    if (q_d == 1.0 and q_m == 1.0) or len(idx) == 0:
+        _on_threads(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes)
+        return
+    u = bin_rng.random((len(idx), 2))
+    keep_d, keep_m = u[:, 0] < q_d, u[:, 1] < q_m
+    for kd, km in ((True, True), (True, False), (False, True), (False, False)):
+        part = settings._replace(double=kd, multiple=km)
+        sel = idx[(keep_d == kd) & (keep_m == km)]
+        if len(sel) == 0 or not (kd or km or part.single):
+            continue
+        prior = out[sel, LAYER_DOUBLE:LAYER_MULTIPLE + 1].copy()  # (what the rows held: only the new share is scaled)
+        _on_threads(pool, threads, sel, pos, dirs, beta, tseg, rng, med, vs, part, out, diffuse, planes)
+        out[sel, LAYER_DOUBLE] = prior[:, 0] + (out[sel, LAYER_DOUBLE] - prior[:, 0]) / q_d
+        out[sel, LAYER_MULTIPLE] = prior[:, 1] + (out[sel, LAYER_MULTIPLE] - prior[:, 1]) / q_m
 
 
 def single_along_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes):

@@ -15,7 +15,8 @@ tests/pointbased/test_radiance_cache.py measures the blur against the per-point 
 
 Double and multiple scattering cost about the same at a bin, but one often carries far less light than the other
 (the oil's multiple scattering, the wax's double): the lesser is then evaluated at a random share of the bins,
-weighted by its inverse (TermShares), unbiased.
+weighted by its inverse (TermShares), unbiased; the points after a diffuse bounce, evaluated one by one, take the
+same shares (gather._after_diffuse).
 """
 
 from __future__ import annotations

@@ -201,20 +201,33 @@ def test_term_shares_follow_the_square_root_of_the_second_moments():
 
 
 def test_term_shares_keep_every_smooth_layers_mean_in_a_render(tmp_path, monkeypatch):
-    """The test sphere's bins evaluating the lesser term at a share of the bins (term_shares) against every bin
-    both, six seeds each: the double, multiple and bounced layers' means agree within 4 standard errors, and the
-    shares did fall below 1."""
+    """The test sphere on a diffuse floor, its bins and the points after a bounce off the floor evaluating the
+    lesser term at a share (term_shares) against every bin and point both, six seeds each: the double, multiple
+    and bounced layers' means agree within 4 standard errors, and the shares did fall below 1 on both."""
+    import pbvol_cli.pointbased.gather as gather
+
     scene = medium_sphere_scene(surface_samples=800, segments_per_beam=4, bounce_samples=64)
-    scene["camera"] = camera((16, 16), position=(0, 0, 3.5), fov=40)
+    scene["camera"] = {**camera((16, 16), position=(0, 2.0, 3.0), fov=50), "look_at": [0.0, -0.4, 0.0]}
     scene["shapes"][0].update(interface="dielectric", eta=1.33)
-    seen = []
+    scene["shapes"].append({"type": "quad", "center": [0.0, -1.0, 0.0], "size": [6.0, 6.0], "interface": "diffuse",
+                            "albedo": 0.8})
+    seen, bounced_off = [], []
     shares = TermShares.shares
     monkeypatch.setattr(TermShares, "shares", lambda self: seen.append(shares(self)) or seen[-1])
+    after = gather._after_diffuse
+
+    def record(pool, threads, idx, *rest):  # (rest[-2]: the TermShares)
+        if rest[-2] is not None and len(idx) and min(shares(rest[-2])) < 1.0:
+            bounced_off.append(len(idx))
+        return after(pool, threads, idx, *rest)
+
+    monkeypatch.setattr(gather, "_after_diffuse", record)
     runs = {}
     for on in (False, True):
         scene["render"]["pbl"]["term_shares"] = on
         runs[on] = _layers(tmp_path, scene, range(6))
     assert seen and min(min(q) for q in seen) < 0.9, seen
+    assert sum(bounced_off) > 0  # points after the floor's bounce took the shares
     for j, name in enumerate(("double", "multiple", "bounced")):
         ma, mb = runs[False][:, j].mean((1, 2, 3)), runs[True][:, j].mean((1, 2, 3))
         se = math.hypot(ma.std(ddof=1), mb.std(ddof=1)) / math.sqrt(len(ma))
