@@ -304,7 +304,8 @@ def beam_segments(caster, bs: BuiltScene, beams: Beams, segments: int, max_refle
         valid = o.len > 0
         for key, arr in zip(SEGMENT_FIELDS, o):
             out[key].append(arr[valid])
-        out["leg"].append((legs + np.arange(m, dtype=np.int64) // segments)[valid])  # (slots k * segments + q)
+        out["leg"].append(((legs + np.arange(m, dtype=np.int64) // segments)[valid]).astype(np.int32))  # (slots k *
+        # segments + q; 32 bits: a set holds fewer than 2^31 legs, and a render's memory peaks while one is built)
         legs += len(act)
         if advance is not None:
             advance()
@@ -312,7 +313,7 @@ def beam_segments(caster, bs: BuiltScene, beams: Beams, segments: int, max_refle
     cat = {k: (np.concatenate(v) if v else np.zeros(empty.get(k, 0))) for k, v in out.items()}
     cat["medium"] = cat["medium"].astype(np.int64)
     cat["ends"] = cat["ends"].astype(np.int64)
-    cat["leg"] = cat["leg"].astype(np.int64)
+    cat["leg"] = cat["leg"].astype(np.int32, copy=False)
     return cat
 
 

@@ -197,6 +197,9 @@ AUTO_FIRST_PATHS = 8
 CAMERA_CHUNK = 1 << 16  # camera paths traced together: a generation holds a few kB per ray (children, shadow rays,
 # contributions), and splitting at glass multiplies the rays; 2^18 made a 512 x 512 pass peak 0.7 GB above its
 # light samples (docs/pbl.md, memory)
+SURFACE_CHUNK = 1 << 15  # surface-only camera paths traced together: they share nothing within a batch (no bins),
+# and a 512 x 512 pass on the wine glass under the sky peaked in their batches: 944-948 MiB at 2^16, 865-867 at
+# 2^15, the same image and time (docs/pbl.md, memory)
 AUTO_MAX_PATHS = 128  # the mean over the pixels, at most
 AUTO_MAX_PIXEL_PATHS = 1024  # one pixel's, at most (a small light's mirror image on glass wants hundreds)
 PASS_COST_RATIO = 20.0  # a pass's medium work in surface paths per pixel (docs/pbl.md). The optimum is flat in it
@@ -359,8 +362,10 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         per_pass = len(pixels)
         single = DeferredSingle()  # the lights' single scattering, evaluated for many batches at once
         term_shares = {} if pbl.term_shares else None  # how often the bins evaluate double and multiple scattering
-        for c0 in range(0, per_pass, chunk):
-            part = slice(c0, min(c0 + chunk, per_pass))
+        # (the segment term marches every path's segments with the batch's random numbers: its batches stay whole)
+        surface_chunk = SURFACE_CHUNK if segment is None else chunk
+        for c0, c1 in batch_bounds(per_pass, int(evm.sum()), chunk, surface_chunk):
+            part = slice(c0, c1)
             path_surface = _trace_batch(bs, caster, pool, threads, media_data, seed, done + c0, pixels[part],
                                         samples[part], evm[part], k[pixels[part]], npix, settings, settings_b, pbl,
                                         acc, single, entry_p, segment_p, term_shares)
@@ -462,6 +467,19 @@ def _roulette(ms, beta, kpaths, u, threshold: float):
     weight = beta.copy()
     weight[ev] /= (q[keep] / kpaths[ev])[:, None]
     return ev, weight
+
+
+def batch_bounds(n: int, n_medium: int, chunk: int, surface_chunk: int) -> list[tuple[int, int]]:
+    """The batches (start, end) of a pass's n camera paths, those that evaluate the medium first (n_medium of them):
+    `chunk` paths a batch while a batch starts among those (their bins are shared within a batch), then
+    `surface_chunk` (a surface-only path's light is its own, and the medium's random numbers are drawn for the
+    paths that evaluate it: any batch size gives the same image)."""
+    bounds, c = [], 0
+    while c < n:
+        size = chunk if c < n_medium else surface_chunk
+        bounds.append((c, min(c + size, n)))
+        c += size
+    return bounds
 
 
 def _shares(term_shares, m, kind: str):

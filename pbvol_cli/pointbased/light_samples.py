@@ -241,7 +241,7 @@ def place_light_samples(bs: BuiltScene, surface_samples: int, segments: int, max
             parts.append(beam_segments(caster, bs, b, seg, max_reflections, seed + s_off, adv))
     finally:
         caster.close()
-    parts[1]["leg"] = parts[1]["leg"] + (int(parts[0]["leg"].max()) + 1 if len(parts[0]["leg"]) else 0)
+    parts[1]["leg"] += int(parts[0]["leg"].max()) + 1 if len(parts[0]["leg"]) else 0
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     flag = np.concatenate([np.zeros(len(parts[0]["len"]), np.int8), np.ones(len(parts[1]["len"]), np.int8)])
     if in_space_order:

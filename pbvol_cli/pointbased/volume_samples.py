@@ -163,24 +163,26 @@ def _in_tree_order(idx, order, start, dirs, length, power, area, ends, plane, ce
 
 
 @njit(cache=True)
-def leg_table(legs, start, dirs, length, area, ends):
-    """The legs of samples (in their stored order) whose leg indices are legs (n,): (leg_first (L,), leg_span (L, 2)).
+def leg_table(v_leg, idx, order, start, dirs, length, area, ends):
+    """The legs of samples stored in the octree's order (sample k is v_leg's idx[order[k]]): (leg_first (L,),
+    leg_span (L, 2)).
     A leg's samples lie end to end on one line, their power falling as e^(-sigma_t t) from the first's start
     (beams._segment_beam), so that a point's share of S_1 is the same formula whichever of them holds it
     (single_scattering.beam_share): the leg is one kernel cylinder, from its first sample's start over
     leg_span = (t_lo, t_hi), continued by END_EXTENSION kernel radii at a boundary end (axial_extent's)."""
-    n = legs.shape[0]
+    n = order.shape[0]
     top = -1
     for k in range(n):
-        top = max(top, legs[k])
+        top = max(top, v_leg[idx[order[k]]])
     dense = np.full(top + 1, -1, np.int64)
     count = 0
     lid = np.empty(n, np.int64)
     for k in range(n):  # the legs present, numbered in order of appearance
-        if dense[legs[k]] < 0:
-            dense[legs[k]] = count
+        leg = v_leg[idx[order[k]]]
+        if dense[leg] < 0:
+            dense[leg] = count
             count += 1
-        lid[k] = dense[legs[k]]
+        lid[k] = dense[leg]
     first = np.full(count, -1, np.int64)
     s0, s1 = np.full(count, np.inf), np.full(count, -np.inf)
     flags = np.zeros(count, np.int64)
@@ -225,7 +227,7 @@ class SampleSet:
                            float(beam_width), st, albedo)
         legs = NO_LEGS
         if getattr(samples, "v_leg", None) is not None and len(idx):
-            legs = leg_table(samples.v_leg[idx[skeleton.order]], start, dirs, length, area, ends)
+            legs = leg_table(samples.v_leg, idx, skeleton.order, start, dirs, length, area, ends)
         skeleton.order = np.arange(len(idx), dtype=np.int64)
         tree = aggregate_octree(skeleton, centre, box_lo, box_hi, dirs, self.scat)
         self.count = len(idx)

@@ -237,3 +237,24 @@ def test_add_rows_sums_repeated_rows_in_order_as_numpy_add_at():
     assert np.array_equal(got, expected)  # the same additions in the same order
     add_rows(got, index[:0], values[:0])
     assert np.array_equal(got, expected)
+
+
+def test_surface_only_batches_of_any_size_give_the_same_image(tmp_path, monkeypatch):
+    """The surface-only camera paths are traced in batches of SURFACE_CHUNK (memory): batches of 64 give the
+    image of one batch bit for bit (their light is their own; the medium's paths keep their batches of 100)."""
+    import pbvol_cli.pointbased.camera_pass as camera_pass
+
+    assert camera_pass.batch_bounds(10, 3, 4, 2) == [(0, 4), (4, 6), (6, 8), (8, 10)]
+    assert camera_pass.batch_bounds(10, 0, 4, 3) == [(0, 3), (3, 6), (6, 9), (9, 10)]
+    scene = medium_sphere_scene(surface_samples=800, segments_per_beam=4, surface_paths=8)
+    scene["shapes"][0].update(interface="dielectric", eta=1.5)
+    scene["lights"].append({"type": "environment", "radiance": 0.3})
+    monkeypatch.setattr(camera_pass, "CAMERA_CHUNK", 100)  # (144 pixels: the medium's paths in two batches)
+    images, batches = [], []
+    trace = camera_pass._trace_batch
+    monkeypatch.setattr(camera_pass, "_trace_batch", lambda *a, **k: (batches.append(len(a[7])), trace(*a, **k))[1])
+    for size in (camera_pass.SURFACE_CHUNK, 64):
+        monkeypatch.setattr(camera_pass, "SURFACE_CHUNK", size)
+        images.append(read_exr(next(_seed_renders(tmp_path, scene, spp=2, seeds=[5])))[0])
+    assert images[0].max() > 0 and np.array_equal(images[0], images[1])
+    assert 64 in batches and max(batches) > 500  # the second render did cut the surface-only paths in 64s
