@@ -12,9 +12,8 @@ from pbvol_cli.multiple_scattering.table import empty_table
 from pbvol_cli.pipeline.render import RenderOptions, render_scene
 from pbvol_cli.pointbased.gather import LAYER_DOUBLE, GatherSettings, eval_segments, segment_planes
 from pbvol_cli.pointbased.light_samples import place_light_samples
-from pbvol_cli.pointbased.radiance_cache import (TERM_SHARE_MIN, CacheSettings, TermShares, bin_keys, lateral_width,
-                                                 representatives, shared_terms,
-                                                 thread_parts)
+from pbvol_cli.pointbased.radiance_cache import (TERM_SHARE_MIN, CacheSettings, TermShares, bin_groups, bin_keys,
+                                                 lateral_width, representatives, shared_terms, thread_parts)
 from pbvol_cli.pointbased.volume_samples import SampleSet
 
 
@@ -45,6 +44,19 @@ def test_bin_keys_split_space_into_cells_and_directions_into_cube_map_bins():
     # the grid's shift and turn come from the generator: the same seed, the same bins
     assert np.array_equal(keys, bin_keys(pos, d, depth, 1.0, 1.0, 4, np.random.default_rng(7)))
     assert not np.array_equal(keys, bin_keys(pos, d, depth, 1.0, 1.0, 4, np.random.default_rng(8)))
+
+
+def test_bin_groups_number_the_bins_as_unique_rows_do():
+    rng = np.random.default_rng(3)
+    keys = np.column_stack([rng.integers(-5, 30, 5000), rng.integers(0, 3, 5000), rng.integers(-3, 4, 5000),
+                            rng.integers(0, 40, 5000), rng.integers(0, 384, 5000)]).astype(np.int64)
+    keys[::7, 3] = 10 ** 9  # a point without a boundary plane: its depth slab far away
+    expected = np.unique(keys, axis=0, return_inverse=True)[1].ravel()
+    assert np.array_equal(bin_groups(keys), expected)
+    wide = keys.copy()
+    wide[::5, 0] = 2 ** 40  # ranges too wide for one 62-bit integer: the rows themselves
+    assert np.array_equal(bin_groups(wide), np.unique(wide, axis=0, return_inverse=True)[1].ravel())
+    assert len(bin_groups(keys[:0])) == 0
 
 
 def test_representatives_are_drawn_in_proportion_to_the_weights():
