@@ -7,8 +7,9 @@
 Each --set is one variant: comma-separated [render.pbl] overrides (numbers, true/false or words). Each variant
 renders the scene once per seed (each in this process after a warm-up render, so that compiling is not timed) and
 prints the mean time per render, the noise (relMSE between two seeds' images / 2: one image's variance in relMSE
-units, where the method is unbiased) and the image and layer means and noise over the seeds: a variant that keeps
-the means and lowers noise x time is the better one.
+units, where the method is unbiased) and the image and layer means and noise over the seeds (each layer's on its own
+scale, then on the image's: the second says which layer the image's noise comes from): a variant that keeps the
+means and lowers noise x time is the better one.
 """
 
 from __future__ import annotations
@@ -78,12 +79,21 @@ def main():
             return float(np.mean([((a - b) ** 2 / ((0.5 * (a + b)) ** 2 + 0.01)).mean()
                                   for i, a in enumerate(images) for b in images[i + 1:]])) / 2
 
+        def share(layer, images):
+            # a layer's seed-to-seed spread over the image's own scale (its sum over the layers is the image's
+            # noise less the layers' covariances): which layer the noise comes from
+            return float(np.mean([((a - b) ** 2 / ((0.5 * (ia + ib)) ** 2 + 0.01)).mean()
+                                  for i, (a, ia) in enumerate(zip(layer, images))
+                                  for b, ib in zip(layer[i + 1:], images[i + 1:])])) / 2
+
         noise = spread(imgs)
         t = float(np.mean(times))
         print(f"{path.stem} {variant or '(scene settings)'}: {t:.2f} s per render, noise {noise:.5f}, "
               f"noise x time {noise * t:.4f}, image mean {np.round(mean.mean((0, 1)), 6).tolist()}")
         print("    layer means " + ", ".join(f"{k} {np.mean([L[k] for L in layers]):.6f}" for k in layers[0]))
         print("    layer noise " + ", ".join(f"{k} {spread([P[k] for P in planes]):.6f}" for k in planes[0]))
+        print("    of the image's noise " + ", ".join(f"{k} {share([P[k] for P in planes], imgs):.6f}"
+                                                    for k in planes[0]))
 
 
 if __name__ == "__main__":

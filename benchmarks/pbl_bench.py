@@ -94,6 +94,17 @@ def rel_mse(a, b) -> float:
     return image_metrics(a, b)["rel_mse"]
 
 
+def block_rel_mse(a, b, block: int = 8) -> float:
+    """relMSE (as compare's) of the two images averaged over block x block pixels: the part of a's error that does
+    not average out over a few pixels (noise falls by block^2, a bias stays): an upper estimate of a's bias."""
+    h, w = (a.shape[0] // block) * block, (a.shape[1] // block) * block
+
+    def mean(x):
+        return x[:h, :w].reshape(h // block, block, w // block, block, -1).mean(axis=(1, 3))
+
+    return rel_mse(mean(a), mean(b))
+
+
 def medium_mask(pbl_exr: Path):
     """Pixels where pbl's volume layers carry at least 5% of the pixel: the participating medium as seen."""
     import numpy as np

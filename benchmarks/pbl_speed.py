@@ -18,7 +18,8 @@ timed; peak memory is per process):
   5. with --reuse-curves, the volpath and Mitsuba curves of an earlier run's pbl_speed.json instead (they do not
      depend on pbl's code; the reference must be the same, as it is from the cache);
   6. with --pass-only, step 2 alone (no reference): <out>/pass_cost.md;
-  6b. pbl's time at each of its renders over the time volpath takes to the same error (a second table);
+  6b. pbl's time at each of its renders over the time volpath takes to the same error (a second table), and pbl's
+     relMSE over 8 x 8 blocks at its longest render (an upper estimate of its bias: noise falls 64-fold there);
   7. with --mitsuba (the python of a venv with mitsuba installed), Mitsuba 3's error against time for each of
      --mitsuba-integrators on the scene as `pbvol export-mitsuba` writes it (benchmarks/mitsuba_reference.py, its
      JIT warm-up not timed), against the same reference, and pbl's speed-up to --target over the best of them
@@ -36,7 +37,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from pbl_bench import RENDER, ROOT, _run, rel_mse, scenes_with_references  # noqa: E402
+from pbl_bench import RENDER, ROOT, _run, block_rel_mse, rel_mse, scenes_with_references  # noqa: E402
 
 
 def time_to(points: list[tuple[float, float]], target: float, extrapolate: bool) -> float | None:
@@ -90,7 +91,7 @@ def main():
         return
     rows = []
     for name, scene, ref, ref_noise in scenes_with_references(args, res):
-        curves = {}
+        curves, blocks = {}, None
         reused = reused_curves(args.reuse_curves, name, res)
         for method, spps in (("pbl", args.pbl_spp), ("volpath", args.volpath_spp)):
             if method in reused:
@@ -102,6 +103,8 @@ def main():
                 pts.append((s["time_s"], max(rel_mse(img, ref) - ref_noise, 1e-12), spp, s["peak_memory_mb"]))
                 print(f"{name} {method} {spp} spp: {s['time_s']:.2f} s, relMSE {pts[-1][1]:.5f}", flush=True)
             curves[method] = pts
+            if method == "pbl":  # the last (longest) render's error over 8 x 8 blocks: its bias, at most
+                blocks = (pts[-1][2], block_rel_mse(img, ref))
         if args.mitsuba:
             curves.update(mitsuba_curves(args, name, scene, ref, ref_noise))
         curves.update({k: v for k, v in reused.items() if k.startswith("mitsuba") and k not in curves})
@@ -113,7 +116,8 @@ def main():
                "pass_s": t_pass, "volpath16_s": t_vp16,
                "pass_over_volpath16": t_pass / t_vp16 if t_pass and t_vp16 else None,
                "pbl_to_target_s": tp, "volpath_to_target_s": tv,
-               "speed_up_at_target": tv / tp if tp and tv else None}
+               "speed_up_at_target": tv / tp if tp and tv else None,
+               "pbl_block_rel_mse": blocks}
         mitsuba = {k: time_to([p[:2] for p in v], args.target, extrapolate=True) for k, v in curves.items()
                    if k.startswith("mitsuba")}
         if mitsuba:
@@ -139,6 +143,11 @@ def main():
                      f"| {f(r.get('mitsuba_to_target_s'), '{:.1f}')} {r.get('mitsuba_best', '')} "
                      f"| {f(r.get('speed_up_over_mitsuba'), '{:.1f}×')} |")
     table = "\n".join(lines) + "\n\n" + equal_error_table(rows)
+    floors = [f"- {r['scene']}: {r['pbl_block_rel_mse'][1]:.5f} at {r['pbl_block_rel_mse'][0]} passes"
+              for r in rows if r.get("pbl_block_rel_mse")]
+    if floors:
+        table += ("\n\npbl's relMSE over 8 x 8 blocks at its longest render (noise falls 64-fold there, a bias "
+                  "stays: an upper estimate of the error it cannot average away):\n" + "\n".join(floors))
     (args.out / "pbl_speed.md").write_text(table + "\n")
     print(table)
 
