@@ -390,6 +390,10 @@ class PblSettings(Strict):
     term_shares: Bool = Field(True, description="a bin evaluates the lesser of double and multiple scattering (by "
                               "its second moment in the pass so far) at a random share of the bins, weighted by its "
                               "inverse: unbiased, less time for the same noise (docs/pbl.md); false: every bin both")
+    diffuse_shares: Bool = Field(True, description="the camera rays after a diffuse bounce evaluate the medium's "
+                                 "smooth terms on a share of them from the third pass on, by the splitting optimum of "
+                                 "their measured second moment against the pass's variance, weighted by its inverse "
+                                 "(unbiased; docs/pbl.md); false: all of them")
     cut_size: Int = Field(8, ge=0, le=64, description="octree refinements per point for double and multiple scattering "
                           "(stochastic light cut: more = less noise, more time)")
     clamp: Num = Field(0.02, ge=0, description="smallest radius a source's 1/r^2 is averaged over (double "

@@ -220,6 +220,45 @@ def auto_surface_paths(s1, m: float, max_paths: int = AUTO_MAX_PATHS):
     return int(k) if k.ndim == 0 else k
 
 
+DIFFUSE_COST = 0.3  # the smooth terms after a diffuse bounce over the rest of a pass's cost, as measured on the
+# sky-lit glasses at 256² (oil 2.35 of 10.25 s, milk 1.66 of 7.69 s: 0.30 and 0.28); the optimum is flat in it
+DIFFUSE_SHARE_MIN = 0.125  # the least share of those rays that evaluates them (their weight at most 8)
+
+
+def diffuse_share(b: float, v: float, p_before: float) -> float:
+    """The share p of the camera rays after a diffuse bounce that evaluate the medium's smooth terms (weighted 1 /
+    p) in the next pass. Evaluating them on a share p adds b (1/p - 1) to a pass's variance and saves (1 - p) of
+    their cost D = DIFFUSE_COST x the rest's: with the pass's variance a + b / p (a: the rest, v measured at
+    p_before) the noise x time (a + b / p)(1 + DIFFUSE_COST p) is least at p = sqrt(b / (a DIFFUSE_COST)), the
+    splitting optimum. b: their second moment (relative, as compare's relMSE, a pixel's mean)."""
+    a = v - b / p_before
+    if b <= 0.0:
+        return DIFFUSE_SHARE_MIN
+    if a <= 0.0:
+        return 1.0
+    return float(min(1.0, max(DIFFUSE_SHARE_MIN, math.sqrt(b / (a * DIFFUSE_COST)))))
+
+
+class DiffuseShare:
+    """A pass's share p of the rays after a diffuse bounce that evaluate the smooth terms (gather._after_diffuse),
+    and the second moment of what they added, measured for the next passes' share: the sum over those rays of
+    p (value / den)^2 per channel, value their contribution to the pixel's estimate (weighted 1 / p, so that p times
+    its square has the unweighted one's expectation), den the pixel's image so far squared + 0.01 (None: not
+    measured, the first pass)."""
+
+    def __init__(self, p: float, den: np.ndarray | None):
+        self.p, self.den, self.second_moment, self.rays = float(p), den, 0.0, 0
+
+    def add(self, pixel: np.ndarray, kpaths: np.ndarray, value: np.ndarray):
+        """value (n, 3): the rays' smooth terms after a diffuse bounce as evaluated, weighted by their pixel's path
+        count kpaths (n,) like every medium term (the pixel's estimate divides by it)."""
+        self.rays += len(pixel)
+        if self.den is None or len(pixel) == 0:
+            return
+        y = value / kpaths[:, None]
+        self.second_moment += self.p * float((y * y / self.den[pixel]).mean(axis=1).sum())
+
+
 def _spread(values: np.ndarray, width: int) -> np.ndarray:
     """Each pixel's value raised to the mean of its 3 x 3 neighbourhood where that is larger: a rare event (a
     caustic path) seen in one pixel is likely in its neighbours too."""
@@ -241,6 +280,7 @@ class PixelStatistics:
         self.surface_sum, self.surface_sq = np.zeros((npix, 3)), np.zeros((npix, 3))
         self.medium_sum, self.medium_sq = np.zeros((npix, 3)), np.zeros((npix, 3))
         self.passes = 0
+        self.diffuse = []  # (second moment a pixel, share) of the rays after a diffuse bounce, per measured pass
 
     def add(self, k: np.ndarray, surface_sum, surface_sq, medium):
         """A pass: each pixel's path count k, the sum and sum of squares of its paths' surface light, and its
@@ -261,6 +301,20 @@ class PixelStatistics:
         p = self.passes
         m = float((np.maximum(self.medium_sq - self.medium_sum ** 2 / p, 0.0) / (p - 1) / den).mean())
         return (var / den).mean(axis=1), m
+
+    def add_diffuse(self, share: DiffuseShare, npix: int):
+        """A pass's DiffuseShare (npix pixels), kept where it measured rays after a diffuse bounce."""
+        if share.den is not None and share.rays > 0:
+            self.diffuse.append((share.second_moment / npix, share.p))
+
+    def next_diffuse_share(self, image, k: np.ndarray) -> float:
+        """The next pass's share of the rays after a diffuse bounce that evaluate the smooth terms (diffuse_share),
+        the pass tracing k paths per pixel; 1 until two passes and a measured second moment are in."""
+        if self.passes < 2 or not self.diffuse:  # (from the third pass on: the variances want two passes)
+            return 1.0
+        s1, m = self.variances(image)
+        b = float(np.mean([d[0] for d in self.diffuse]))
+        return diffuse_share(b, float(np.mean(s1 / k)) + m, self.diffuse[-1][1])
 
     def next_paths(self, image) -> np.ndarray | None:
         """Each pixel's path count for the next pass, or None while two passes are not yet in. The counts' mean is
@@ -312,7 +366,9 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     (render/raymarch.RayMarcher; its through_dielectrics: whether they cross smooth dielectrics); the media then need
     not be homogeneous. first_pass: the passes are first_pass .. first_pass + spp - 1 of the scene's sequence
     (render --samples; see first_path_indices). Returns (image (H, W, 3), layers {name: (H, W, 3)}, stats;
-    stats["spp"]: the passes rendered, stats["surface_paths"]: the mean paths per pixel of each pass, stats["sums"]:
+    stats["spp"]: the passes rendered, stats["surface_paths"]: the mean paths per pixel of each pass,
+    stats["diffuse_shares"]: each pass's share of the rays after a diffuse bounce that evaluate the smooth terms
+    (DiffuseShare), stats["sums"]:
     {layer: render/sample_sums.SampleSums over the passes}, in the order the image adds the layers)."""
     W, H = bs.resolution
     npix = W * H
@@ -325,7 +381,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
              *(segment.layers if segment is not None else ()))
     sums = {name: SampleSums() for name in names}  # each layer's sum over passes, merged exactly by pbvol merge
     stats = PixelStatistics(npix, W)
-    ks = []
+    ks, shares = [], []
     t0 = time.perf_counter()
     chunk = CAMERA_CHUNK
     done, first_sample = first_path_indices(pbl.surface_paths, first_pass, npix)
@@ -335,13 +391,17 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         if time_limit is not None and passes > 0 and time.perf_counter() - t0 > time_limit:
             break
         passes += 1
+        image_so_far = sum(s.total() for s in sums.values()) / (passes - 1) if passes > 1 else None
         if pbl.surface_paths > 0:
             k = np.full(npix, pbl.surface_paths, np.int64)
         else:  # auto: from the passes so far, once two are in (the image so far weighs them as relMSE does)
-            k = stats.next_paths(sum(s.total() for s in sums.values()) / (passes - 1)) if passes > 1 else None
+            k = stats.next_paths(image_so_far) if image_so_far is not None else None
             if k is None:
                 k = np.full(npix, AUTO_FIRST_PATHS, np.int64)
         ks.append(float(k.mean()))
+        share = stats.next_diffuse_share(image_so_far, k) if pbl.diffuse_shares else 1.0
+        shares.append(share)
+        diffuse = DiffuseShare(share, image_so_far ** 2 + 1e-2 if image_so_far is not None else None)
         media_data = media_for_pass(p)
         entry_p = entry.for_pass(p) if entry is not None else None
         segment_p = segment.for_pass(p, caster) if segment is not None else None
@@ -368,7 +428,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
             part = slice(c0, c1)
             path_surface = _trace_batch(bs, caster, pool, threads, media_data, seed, done + c0, pixels[part],
                                         samples[part], evm[part], k[pixels[part]], npix, settings, settings_b, pbl,
-                                        acc, single, entry_p, segment_p, term_shares)
+                                        acc, single, entry_p, segment_p, term_shares, diffuse)
             if single.full() or part.stop == per_pass:
                 single.flush(pool, threads, acc["single"], npix)
             for ch in range(3):
@@ -380,6 +440,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         for name in names:
             sums[name].push(p, p + 1, acc[name] / k[:, None])
         stats.add(k, acc["surface"], surface_sq, sum(acc[c] for c in names if c != "surface") / k[:, None])
+        stats.add_diffuse(diffuse, npix)
         # this pass's sample sets and buffers freed before the next pass builds its own: not both at once
         media_data = acc = surface_sq = pixels = samples = ranks = evm = first = path_surface = None
     caster.close()
@@ -387,7 +448,8 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         pool.shutdown()
     out = layer_means(sums, passes, (H, W, 3))
     image = sum(out.values())
-    return image, out, {"time_s": time.perf_counter() - t0, "spp": passes, "surface_paths": ks, "sums": sums}
+    return image, out, {"time_s": time.perf_counter() - t0, "spp": passes, "surface_paths": ks, "sums": sums,
+                        "diffuse_shares": shares}
 
 
 def first_path_indices(surface_paths: int, first_pass: int, npix: int) -> tuple[int, int]:
@@ -488,11 +550,13 @@ def _shares(term_shares, m, kind: str):
 
 
 def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samples, evm, kpaths, npix, settings,
-                 settings_b, pbl, layers, single, entry=None, segment=None, term_shares=None):
+                 settings_b, pbl, layers, single, entry=None, segment=None, term_shares=None, dshare=None):
     """Camera paths (sample samples[i] of pixel pixels[i]; `done` paths traced before them in this render), traced to
     the end, added into layers; the lights' single scattering into single (gather.DeferredSingle), which the caller
     flushes into layers["single"]; term_shares: the pass's radiance_cache.TermShares by (medium, "lit" or
-    "bounced"), filled as the bins are evaluated (None: every bin evaluates every term). Path i evaluates
+    "bounced"), filled as the bins are evaluated (None: every bin evaluates every term); dshare: the pass's
+    DiffuseShare (the share of the rays after a diffuse bounce that evaluate the smooth terms, and their second
+    moment measured; None: all of them, not measured). Path i evaluates
     the medium where evm[i], its medium terms weighted kpaths[i] (its pixel's path count in this pass), and the
     entry term (render_pbl) where it enters a medium. Returns each path's surface light (n, 3)."""
     n = len(pixels)
@@ -511,6 +575,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
     limits = PathLimits(bs.eps, pbl.max_split_depth, pbl.diffuse_bounces,
                         0 if segment is None else 2 if segment.through_dielectrics else 1)
     cache, cache_b = cache_settings(pbl), cache_settings(pbl, single=True)  # the bounced light is smooth throughout
+    p_diffuse = dshare.p if dshare is not None else 1.0
     entered = np.zeros(n)  # eta beyond / eta before where a ray has just entered a medium (0: it has not)
     while len(pos):
         t, surf, ng, ns = closest_surface_hits(caster, bs, pos, dirs)
@@ -546,14 +611,15 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                 if settings.double or settings.multiple:
                     eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, med, lit.kernel,
                                   settings._replace(single=False), contrib, state >> 2, planes, cache, roulette_rng,
-                                  _shares(term_shares, m, "lit"))
+                                  _shares(term_shares, m, "lit"), p_diffuse)
                 if bounced is not None and bounced.count:
                     qb = min(1.0, scattered_share(lit, bounced) / BOUNCED_ROULETTE)
                     evb = ev[roulette_rng.random(len(ev)) < qb]
                     beta_b = beta_ev / qb
                     cb3 = np.zeros((len(pos), 3, 3))
                     eval_segments(pool, threads, evb, pos, dirs, beta_b, tev, rng, med, bounced.kernel, settings_b,
-                                  cb3, state >> 2, planes, cache_b, roulette_rng, _shares(term_shares, m, "bounced"))
+                                  cb3, state >> 2, planes, cache_b, roulette_rng, _shares(term_shares, m, "bounced"),
+                                  p_diffuse)
                     contrib[evb, LAYER_BOUNCED] += cb3[evb, 0] + cb3[evb, 1] + cb3[evb, 2]  # (the rows it wrote)
             if entry is not None:
                 _add_entry_term(entry, int(m), sub[evm[sub] & (entered[sub] > 0)], pos, beta, kpaths, entered,
@@ -574,6 +640,9 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                 beta[sub] *= transmittance
             else:
                 _attenuate(beta, sub, tev, sum(bs.medium_sigmas(m)))
+        if len(need) and dshare is not None:  # the smooth terms after a diffuse bounce, for the next shares
+            after = need[(state >> 2)[need] > 0]
+            dshare.add(pixel[after], kpaths[after], contrib[after, LAYER_DOUBLE:].sum(axis=1))
         if len(need):  # contrib is zero where no segment evaluated the medium
             for c, name in zip((LAYER_SINGLE, LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_BOUNCED), COMPONENTS):
                 add_rows(layers[name], pixel[need], contrib[need, c])

@@ -88,11 +88,12 @@ def _eval_segments(idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diff
 
 
 def eval_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes,
-                  cache: CacheSettings | None = None, bin_rng=None, term_shares=None):
+                  cache: CacheSettings | None = None, bin_rng=None, term_shares=None, diffuse_share: float = 1.0):
     """_segment for the rays idx: med (Medium), vs (VolumeSamples), settings (GatherSettings), out (n, 3, 3).
     With cache (CacheSettings, cell > 0) and bin_rng, the smooth terms of the rays that did not bounce off a diffuse
     surface are shared among the points of a bin (radiance_cache.shared_terms, with term_shares: a
-    radiance_cache.TermShares, how often a bin evaluates each term) instead.
+    radiance_cache.TermShares, how often a bin evaluates each term) instead, and those of the rays after a diffuse
+    bounce are evaluated on a share diffuse_share of them (camera_pass.DiffuseShare), weighted by its inverse.
 
     Numba's parallel loops reject the nested tuples (the octree, the tables): threads over slices instead, the
     kernel releasing the GIL. Rays are independent, so the result does not depend on the split."""
@@ -108,7 +109,7 @@ def eval_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, setti
                                   planes)
         return
     _after_diffuse(pool, threads, idx[after_diffuse], pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse,
-                   planes, term_shares, bin_rng)
+                   planes, term_shares, bin_rng, diffuse_share)
     if settings.single and not cache.single:
         single_along_segments(pool, threads, direct, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse,
                               planes)
@@ -117,10 +118,25 @@ def eval_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, setti
 
 
 def _after_diffuse(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes,
-                   term_shares, bin_rng):
-    """Every term of the rays idx after a diffuse bounce, point by point (_segment), double and multiple each on
-    the pass's share of the rays (term_shares: radiance_cache.TermShares, as measured on the bins; None: all),
-    weighted by its inverse (bin_rng draws which)."""
+                   term_shares, bin_rng, share: float = 1.0):
+    """Every term of the rays idx after a diffuse bounce, point by point (_segment), on a share `share` of the rays
+    (the others none: a Russian roulette, bin_rng drawing which), weighted by its inverse, and among those double
+    and multiple each on the pass's share (term_shares: radiance_cache.TermShares, as measured on the bins; None:
+    all), weighted by its inverse."""
+    if share < 1.0 and len(idx):
+        kept = idx[bin_rng.random(len(idx)) < share]
+        prior = out[kept].copy()  # (what the rows held: only the new terms are scaled)
+        _after_diffuse_terms(pool, threads, kept, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes,
+                             term_shares, bin_rng)
+        out[kept] = prior + (out[kept] - prior) / share
+        return
+    _after_diffuse_terms(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes,
+                         term_shares, bin_rng)
+
+
+def _after_diffuse_terms(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes,
+                         term_shares, bin_rng):
+    """_after_diffuse's terms of the rays idx."""
     q_d, q_m = term_shares.shares() if term_shares is not None and settings.double and settings.multiple \
         else (1.0, 1.0)
     if (q_d == 1.0 and q_m == 1.0) or len(idx) == 0:

@@ -228,8 +228,8 @@ def test_term_shares_keep_every_smooth_layers_mean_in_a_render(tmp_path, monkeyp
     monkeypatch.setattr(TermShares, "shares", lambda self: seen.append(shares(self)) or seen[-1])
     after = gather._after_diffuse
 
-    def record(pool, threads, idx, *rest):  # (rest[-2]: the TermShares)
-        if rest[-2] is not None and len(idx) and min(shares(rest[-2])) < 1.0:
+    def record(pool, threads, idx, *rest):  # (rest[-3]: the TermShares)
+        if rest[-3] is not None and len(idx) and min(shares(rest[-3])) < 1.0:
             bounced_off.append(len(idx))
         return after(pool, threads, idx, *rest)
 
