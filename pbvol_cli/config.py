@@ -393,7 +393,8 @@ class PblSettings(Strict):
     diffuse_shares: Bool = Field(True, description="the camera rays after a diffuse bounce evaluate the medium's "
                                  "smooth terms on a share of them from the third pass on, by the splitting optimum of "
                                  "their measured second moment against the pass's variance, weighted by its inverse "
-                                 "(unbiased; docs/pbl.md); false: all of them")
+                                 "(unbiased; docs/pbl.md), with surface_paths = 0 (auto: a pass follows the passes "
+                                 "before); false, or a fixed surface_paths: all of them")
     cut_size: Int = Field(8, ge=0, le=64, description="octree refinements per point for double and multiple scattering "
                           "(stochastic light cut: more = less noise, more time)")
     clamp: Num = Field(0.02, ge=0, description="smallest radius a source's 1/r^2 is averaged over (double "

@@ -399,7 +399,9 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
             if k is None:
                 k = np.full(npix, AUTO_FIRST_PATHS, np.int64)
         ks.append(float(k.mean()))
-        share = stats.next_diffuse_share(image_so_far, k) if pbl.diffuse_shares else 1.0
+        # (like the auto counts, the share follows the passes before: with a fixed count k every ray plays, so that
+        # a part of a render repeats its passes bit for bit, docs/distributed.md)
+        share = stats.next_diffuse_share(image_so_far, k) if pbl.diffuse_shares and pbl.surface_paths == 0 else 1.0
         shares.append(share)
         diffuse = DiffuseShare(share, image_so_far ** 2 + 1e-2 if image_so_far is not None else None)
         media_data = media_for_pass(p)
