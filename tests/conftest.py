@@ -69,6 +69,22 @@ def render_layers(tmp_path: Path, scene: dict, method: str, spp: int, seed: int 
     return dict(layers, image=sum(layers.values()))
 
 
+def smooth_layers(tmp_path: Path, scene: dict, seeds) -> np.ndarray:
+    """The smooth layers (double, multiple, bounced) of 2-pass pbl renders of scene, one per seed: (seed, layer, H,
+    W, 3)."""
+    from pbvol_cli.imageio import read_layers
+    from pbvol_cli.pipeline.render import RenderOptions, render_scene
+
+    path = write_scene(tmp_path, scene)
+    out = []
+    for seed in seeds:
+        render_scene(path, tmp_path / "o.exr", RenderOptions(method="pbl", spp=2, seed=seed, cache_dir=tmp_path,
+                                                             quiet=True))
+        L = read_layers(tmp_path / "o.exr")
+        out.append([L[c].astype(float) for c in ("double", "multiple", "bounced")])
+    return np.array(out)
+
+
 def camera_ray(cam, x, y):
     """The built camera's ray through the image point (x, y) in [-1, 1] (y up): origin, direction (not unit)."""
     d = cam[CAM_FORWARD:CAM_FORWARD + 3] + x * cam[CAM_RIGHT:CAM_RIGHT + 3] + y * cam[CAM_UP:CAM_UP + 3]

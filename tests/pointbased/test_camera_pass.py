@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from conftest import camera, medium_sphere_scene, write_scene
+from conftest import camera, medium_sphere_scene, smooth_layers, write_scene
 from pbvol_cli.imageio import read_exr, read_layers
 from pbvol_cli.pipeline.render import RenderOptions, render_scene
 from pbvol_cli.pointbased.camera_pass import (AUTO_MAX_PATHS, DIFFUSE_COST, DIFFUSE_SHARE_MIN, PASS_COST_RATIO,
@@ -189,24 +189,12 @@ def test_diffuse_shares_keep_every_smooth_layers_mean_in_a_render(tmp_path, monk
     runs = {}
     for share in (1.0, 0.5):
         monkeypatch.setattr(PixelStatistics, "next_diffuse_share", lambda self, image, k, q=share: q)
-        runs[share] = _smooth_layers(tmp_path, scene, range(6))
+        runs[share] = smooth_layers(tmp_path, scene, range(6))
     assert sum(played) > 0
     for j, name in enumerate(("double", "multiple", "bounced")):
         ma, mb = runs[1.0][:, j].mean((1, 2, 3)), runs[0.5][:, j].mean((1, 2, 3))
         se = math.hypot(ma.std(ddof=1), mb.std(ddof=1)) / math.sqrt(len(ma))
         assert ma.mean() > 0 and abs(ma.mean() - mb.mean()) < 4 * se, (name, ma.mean(), mb.mean(), se)
-
-
-def _smooth_layers(tmp_path, scene, seeds):
-    """The double, multiple and bounced layers of 2-pass pbl renders of scene, one per seed: (seed, 3, H, W, 3)."""
-    path = write_scene(tmp_path, scene)
-    out = []
-    for seed in seeds:
-        render_scene(path, tmp_path / "o.exr", RenderOptions(method="pbl", spp=2, seed=seed, cache_dir=tmp_path,
-                                                             quiet=True))
-        L = read_layers(tmp_path / "o.exr")
-        out.append([L[c].astype(float) for c in ("double", "multiple", "bounced")])
-    return np.array(out)
 
 
 def test_pass_paths_run_sample_by_sample_and_continue_each_pixels_count():

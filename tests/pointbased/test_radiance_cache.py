@@ -6,10 +6,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from conftest import SPHERE_SIGMA_A, SPHERE_SIGMA_S, build, camera, medium_sphere_scene, write_scene
-from pbvol_cli.imageio import read_layers
+from conftest import SPHERE_SIGMA_A, SPHERE_SIGMA_S, build, camera, medium_sphere_scene, smooth_layers
 from pbvol_cli.multiple_scattering.table import empty_table
-from pbvol_cli.pipeline.render import RenderOptions, render_scene
 from pbvol_cli.pointbased.gather import LAYER_DOUBLE, GatherSettings, eval_segments, segment_planes
 from pbvol_cli.pointbased.light_samples import place_light_samples
 from pbvol_cli.pointbased.radiance_cache import (TERM_SHARE_MIN, CacheSettings, TermShares, bin_groups, bin_keys,
@@ -166,18 +164,6 @@ def test_bins_two_mean_free_paths_wide_on_a_body_sixteen_across_stay_below_the_n
     assert ratio < 1.5 and evaluations < narrow
 
 
-def _layers(tmp_path, scene, seeds):
-    """The smooth layers (double, multiple, bounced) of pbl renders of scene, one per seed: (seed, layer, H, W, 3)."""
-    path = write_scene(tmp_path, scene)
-    out = []
-    for seed in seeds:
-        render_scene(path, tmp_path / "o.exr", RenderOptions(method="pbl", spp=2, seed=seed, cache_dir=tmp_path,
-                                                             quiet=True))
-        L = read_layers(tmp_path / "o.exr")
-        out.append([L[c].astype(float) for c in ("double", "multiple", "bounced")])
-    return np.array(out)
-
-
 def test_shared_terms_keep_every_smooth_layers_mean_in_a_render(tmp_path):
     """End to end (the lights' and the bounced samples, through the camera pass): the test sphere behind a
     dielectric boundary rendered with the terms shared and per point, six seeds each: the double, multiple and
@@ -188,7 +174,7 @@ def test_shared_terms_keep_every_smooth_layers_mean_in_a_render(tmp_path):
     runs = {}
     for cell in (0.0, 0.5):
         scene["render"]["pbl"]["cache_cell"] = cell
-        runs[cell] = _layers(tmp_path, scene, range(6))
+        runs[cell] = smooth_layers(tmp_path, scene, range(6))
     for j, name in enumerate(("double", "multiple", "bounced")):
         ma, mb = runs[0.0][:, j].mean((1, 2, 3)), runs[0.5][:, j].mean((1, 2, 3))
         se = math.hypot(ma.std(ddof=1), mb.std(ddof=1)) / math.sqrt(len(ma))
@@ -237,7 +223,7 @@ def test_term_shares_keep_every_smooth_layers_mean_in_a_render(tmp_path, monkeyp
     runs = {}
     for on in (False, True):
         scene["render"]["pbl"]["term_shares"] = on
-        runs[on] = _layers(tmp_path, scene, range(6))
+        runs[on] = smooth_layers(tmp_path, scene, range(6))
     assert seen and min(min(q) for q in seen) < 0.9, seen
     assert sum(bounced_off) > 0  # points after the floor's bounce took the shares
     for j, name in enumerate(("double", "multiple", "bounced")):
