@@ -37,6 +37,7 @@ def scene_samples(scene_arg: str, cache: Path):
     bs = build_scene(scene, path, (64, 64))
     side = light_side(scene, bs, scene.render.seed, 2, RenderOptions(method="pbl", quiet=True, cache_dir=cache),
                       "point cost")
+    bs = side.built  # (its media after [render.pbl] similarity)
     return path, scene, bs, SampleSet(side.samples.samples, 0, bs.media, kernel_tables(side.tables[0]),
                                       scene.render.pbl.beam_width)
 

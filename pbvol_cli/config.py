@@ -395,6 +395,12 @@ class PblSettings(Strict):
                                  "their measured second moment against the pass's variance, weighted by its inverse "
                                  "(unbiased; docs/pbl.md), with surface_paths = 0 (auto: a pass follows the passes "
                                  "before); false, or a fixed surface_paths: all of them")
+    similarity: Literal["none", "delta-eddington"] = Field(
+        "none", description="delta-eddington: each Henyey-Greenstein medium of g > 0 is rendered as its "
+        "delta-Eddington equivalent (a forward delta of weight g^2 folded into the beams: sigma_s x (1 - g^2), "
+        "g / (1 + g); the transport coefficient kept). Far less noise where a strong forward lobe (g near 0.9) "
+        "meets a large light, a bias within a few degrees of the light's direction (docs/pbl.md); the layers are "
+        "then no longer the scattering orders. none: the medium as given")
     cut_size: Int = Field(8, ge=0, le=64, description="octree refinements per point for double and multiple scattering "
                           "(stochastic light cut: more = less noise, more time)")
     clamp: Num = Field(0.02, ge=0, description="smallest radius a source's 1/r^2 is averaged over (double "

@@ -293,7 +293,7 @@ def place_samples(
     from pbvol_cli.geometry.scene_build import build_scene
     from pbvol_cli.pipeline.cache import cache_dir as resolve_cache
     from pbvol_cli.pipeline.progress import peak_memory_mb, progress_bar, set_threads
-    from pbvol_cli.pipeline.render import homogeneous_media_only
+    from pbvol_cli.pipeline.render import homogeneous_media_only, pbl_media
     from pbvol_cli.pipeline.samples import check_samples_memory, get_irradiance_samples, get_light_samples
 
     try:
@@ -310,6 +310,7 @@ def place_samples(
         check_samples_memory(sc.render.pbl, scene)
         built = build_scene(sc, scene)
         homogeneous_media_only(built, "pbl" if method == "pbl" else "dipole", scene)
+        built = pbl_media(built, sc.render.pbl, method)  # (what render places: [render.pbl] similarity)
         cache = resolve_cache(cache_dir, for_writing=True)
         the_seed = sc.render.seed if seed is None else seed
         prog, update = progress_bar(quiet, "place-samples", "steps")

@@ -8,6 +8,7 @@ from pathlib import Path
 from pbvol_cli import config as C
 from pbvol_cli.geometry.scene_build import MediumInfo
 from pbvol_cli.physics.phase import KINDS
+from pbvol_cli.physics.similarity import delta_eddington_coefficients, transformed
 
 
 def media_of_file(path: Path) -> tuple[list[MediumInfo], C.LutSettings]:
@@ -15,10 +16,20 @@ def media_of_file(path: Path) -> tuple[list[MediumInfo], C.LutSettings]:
     data = C.read_toml(path)
     if "camera" in data or "shapes" in data:
         scene = C.load_scene(path)
-        return ([MediumInfo(label, mat, *mat.coefficients(scene.unit)) for label, mat in C.scene_media(scene, path)],
-                scene.render.lut)
+        media = [MediumInfo(label, mat, *mat.coefficients(scene.unit)) for label, mat in C.scene_media(scene, path)]
+        if scene.render.pbl.similarity == "delta-eddington":  # the tables pbl renders this scene with
+            media = [_delta_eddington(m) for m in media]
+        return media, scene.render.lut
     mat = C.load_material(path)
     return [MediumInfo(mat.name or path.stem, mat, *mat.coefficients(mat.length_unit))], C.LutSettings()
+
+
+def _delta_eddington(m: MediumInfo) -> MediumInfo:
+    """m as [render.pbl] similarity = "delta-eddington" renders it (physics/similarity.py)."""
+    if not transformed(m.material.phase, m.material.g):
+        return m
+    sigma_s, g = delta_eddington_coefficients(m.sigma_s, m.material.g)
+    return MediumInfo(f"{m.label} (delta-Eddington)", m.material.model_copy(update={"g": g}), m.sigma_a, sigma_s)
 
 
 def precompute(path: Path, cache: Path, particles: int | None, seed: int | None, force: bool, quiet: bool,

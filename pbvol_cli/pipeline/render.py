@@ -5,7 +5,7 @@ from __future__ import annotations
 import hashlib
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -375,7 +375,7 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts, scene_path, 
     if opts.method in ("raymarch", "vpl"):
         return _render_raymarch(scene, built, spp, seed, threads, time_limit, opts, first_pass)
     side = light_side(scene, built, seed, threads, opts, scene_path)
-    pbl, res, stages = side.pbl, side.samples, side.stages
+    pbl, res, stages, built = side.pbl, side.samples, side.stages, side.built
     samples = [res.samples if res else None]  # the passes take the only reference: freed when no longer needed
     if res:
         res.samples = None
@@ -398,7 +398,8 @@ def _render_pbl(scene, built, spp, seed, threads, time_limit, opts, scene_path, 
 class LightSide:
     """What the point-based passes and the dipole read from the cache: pass 0's light samples (SamplesResult, None
     without a medium), the tables ({medium: [MSTable or None] x 3}) and their entries' names, the dipole's
-    diffusion term (entry), the settings with the method's components, the cache folder and the stages' times."""
+    diffusion term (entry), the settings with the method's components, the cache folder, the stages' times and
+    the scene as the passes render it (its media after [render.pbl] similarity)."""
 
     pbl: object
     samples: object
@@ -407,10 +408,22 @@ class LightSide:
     entry: object
     cache: Path
     stages: dict
+    built: object
+
+
+def pbl_media(built, pbl, method: str):
+    """The scene as the point-based method renders it: its media after pbl.similarity (physics/similarity.py), for
+    --method pbl only (the dipole's single scattering takes the media as given). built itself when unchanged."""
+    from pbvol_cli.physics.similarity import delta_eddington
+
+    if method == "pbl" and pbl.similarity == "delta-eddington":
+        return replace(built, media=delta_eddington(built.media))
+    return built
 
 
 def light_side(scene, built, seed, threads, opts, scene_path) -> LightSide:
     """The light side of a pbl or dipole render from the cache (built and stored when missing)."""
+    from pbvol_cli.geometry.scene_build import MED_G
     from pbvol_cli.pipeline.cache import cache_dir
     from pbvol_cli.pipeline.lut import get_table, table_settings
     from pbvol_cli.pipeline.samples import get_light_samples
@@ -433,6 +446,7 @@ def light_side(scene, built, seed, threads, opts, scene_path) -> LightSide:
             raise PbvolError(f"--components: unknown {', '.join(bad)}; "
                              f"expected a comma list of {', '.join(COMPONENTS)}")
         pbl = pbl.model_copy(update={"components": comps})
+    built = pbl_media(built, pbl, opts.method)
     cache = cache_dir(opts.cache_dir)
     stages = {}
     t0 = time.perf_counter()
@@ -454,14 +468,15 @@ def light_side(scene, built, seed, threads, opts, scene_path) -> LightSide:
     for m, info in enumerate(built.medium_info):
         sig_a, sig_s = built.medium_sigmas(m)
         st = sig_a + sig_s
-        found = [get_table(round(float(sig_s[c] / st[c]), 12), info.material.g, KINDS[info.material.phase],
+        g = float(built.media[m, MED_G])  # (the material's, or its similarity transform's)
+        found = [get_table(round(float(sig_s[c] / st[c]), 12), g, KINDS[info.material.phase],
                            table_settings(scene.render.lut), cache) if wanted and st[c] > 0 else None
                  for c in range(3)]
         tables[m] = [r.table if r else None for r in found]
         table_names[m] = [r.path.name if r else None for r in found]
     stages["tables_s"] = time.perf_counter() - t0
     stages["tables_peak_mb"] = peak_memory_mb()
-    return LightSide(pbl, res, tables, table_names, entry, cache, stages)
+    return LightSide(pbl, res, tables, table_names, entry, cache, stages, built)
 
 
 def _render_raymarch(scene, built, spp, seed, threads, time_limit, opts, first_pass=0):

@@ -36,6 +36,25 @@ def test_place_samples_caches_and_render_writes_component_layers(tmp_path):
     assert bad.exit_code == 1 and "--components" in bad.stderr and "\n" not in bad.stderr.strip()
 
 
+def test_stages_cache_what_a_delta_eddington_render_reads(tmp_path):
+    """With [render.pbl] similarity = "delta-eddington", precompute-lut builds the transformed medium's tables and
+    place-samples places the transformed medium's samples: the render then reuses both."""
+    path = write_scene(tmp_path, medium_sphere_scene(surface_samples=2000, segments_per_beam=4,
+                                                     similarity="delta-eddington"))
+    cache = ["--cache-dir", str(tmp_path / "c")]
+    r = runner.invoke(app, ["precompute-lut", str(path), *cache])
+    assert r.exit_code == 0, r.output
+    assert "(delta-Eddington)" in r.stdout and "g 0.333333" in r.stdout  # g / (1 + g), g = 0.5
+    assert runner.invoke(app, ["place-samples", str(path), *cache]).exit_code == 0
+    staged = sorted(p.name for p in (tmp_path / "c").rglob("*.npz"))
+    out = tmp_path / "o.exr"
+    r = runner.invoke(app, ["render", str(path), "--method", "pbl", "-o", str(out), "--spp", "1", "-q", *cache])
+    assert r.exit_code == 0, r.output
+    assert read_exr(out)[1]["stage_samples_reused"] == 1.0
+    tables = [n for n in staged if n.startswith("ms_")]
+    assert len(tables) == 3 and sorted(p.name for p in (tmp_path / "c" / "lut").glob("*.npz")) == tables
+
+
 def test_pass_zeros_bounced_samples_are_cached_and_give_the_same_image(tmp_path):
     """A pbl render stores pass 0's reflected bounced samples; the next render reuses them (the same pixels, bit
     for bit); a setting they depend on makes a new entry."""

@@ -1,0 +1,42 @@
+"""The delta-Eddington similarity transform: what it keeps (absorption, the transport coefficient, the phase
+function's mean cosine) and what it leaves alone."""
+
+import numpy as np
+import pytest
+
+from pbvol_cli.geometry.scene_build import MED_COLS, MED_G, MED_MAJORANT, MED_PHASE, MED_SIGMA_A, MED_SIGMA_S
+from pbvol_cli.physics.phase import KINDS
+from pbvol_cli.physics.similarity import delta_eddington
+
+
+def _row(phase: str, g: float, sigma_a, sigma_s) -> np.ndarray:
+    row = np.zeros(MED_COLS)
+    row[MED_SIGMA_A:MED_SIGMA_A + 3], row[MED_SIGMA_S:MED_SIGMA_S + 3] = sigma_a, sigma_s
+    row[MED_PHASE], row[MED_G] = KINDS[phase], g
+    row[MED_MAJORANT] = np.max(np.add(sigma_a, sigma_s))
+    return row
+
+
+@pytest.mark.parametrize("g", [0.3, 0.7, 0.9, 0.99])
+def test_keeps_absorption_transport_and_mean_cosine(g):
+    sigma_a, sigma_s = np.array([0.01, 0.1, 0.25]), np.array([0.21, 0.21, 0.21])
+    out = delta_eddington(_row("hg", g, sigma_a, sigma_s)[None])[0]
+    sa, ss, gs = out[MED_SIGMA_A:MED_SIGMA_A + 3], out[MED_SIGMA_S:MED_SIGMA_S + 3], out[MED_G]
+    f = g * g
+    np.testing.assert_array_equal(sa, sigma_a)
+    np.testing.assert_allclose(ss * (1.0 - gs), sigma_s * (1.0 - g), rtol=1e-12)  # transport coefficient
+    np.testing.assert_allclose(f + (1.0 - f) * gs, g, rtol=1e-12)  # the delta's and the lobe's mean cosine
+    np.testing.assert_allclose(ss, (1.0 - f) * sigma_s, rtol=1e-12)
+    assert out[MED_MAJORANT] == pytest.approx(np.max(sa + ss))
+    assert 0.0 < gs < g
+
+
+def test_leaves_other_media_and_the_input_alone():
+    media = np.stack([_row("isotropic", 0.0, [0.1] * 3, [1.0] * 3), _row("hg", 0.0, [0.1] * 3, [1.0] * 3),
+                      _row("hg", -0.5, [0.1] * 3, [1.0] * 3), _row("schlick", 0.8, [0.1] * 3, [1.0] * 3),
+                      _row("hg", 0.9, [0.1] * 3, [1.0] * 3)])
+    before = media.copy()
+    out = delta_eddington(media)
+    np.testing.assert_array_equal(media, before)
+    np.testing.assert_array_equal(out[:4], media[:4])
+    assert out[4, MED_G] == pytest.approx(0.9 / 1.9)
