@@ -24,20 +24,11 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 
-def _value(text: str):
-    if text in ("true", "false"):
-        return text == "true"
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return text
-
-
 def main():
     import numpy as np
     import tomli_w
+
+    from pbl_bench import pbl_overrides
 
     from pbvol_cli.imageio import read_exr, read_layers
     from pbvol_cli.pipeline.render import RenderOptions, render_scene
@@ -57,7 +48,7 @@ def main():
     tmp = Path(tempfile.mkdtemp())
     res = (args.resolution, args.resolution)
     for variant in args.variants or [""]:
-        over = dict((k.strip(), _value(v.strip())) for k, v in (kv.split("=") for kv in variant.split(",") if kv))
+        over = pbl_overrides(variant)
         scene = {**base, "render": {**base.get("render", {})}}
         scene["render"]["pbl"] = {**scene["render"].get("pbl", {}), **over}
         spath = tmp / path.name

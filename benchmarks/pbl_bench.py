@@ -73,6 +73,41 @@ print(json.dumps({"lut_s": t_lut, "samples_s": t_samples, "peak_memory_mb": peak
 """
 
 
+def setting_value(text: str):
+    """A setting's value as written on a command line: true/false, a number, else the word."""
+    if text in ("true", "false"):
+        return text == "true"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def pbl_overrides(text: str) -> dict:
+    """{setting: value} of comma-separated k=v [render.pbl] overrides ("" gives {})."""
+    return dict((k.strip(), setting_value(v.strip())) for k, v in (kv.split("=") for kv in text.split(",") if kv))
+
+
+def with_pbl(scene: Path, folder: Path, overrides: dict) -> Path:
+    """The scene with its [render.pbl] settings overridden, written as folder/<its file name> (the same name: it
+    names the cached references, which do not depend on [render.pbl]); the scene itself without overrides. Files
+    the scene names by a relative path are not rewritten: for scenes without any, as the example scenes here."""
+    import tomllib
+
+    import tomli_w
+
+    if not overrides:
+        return scene
+    data = tomllib.loads(scene.read_text())
+    data.setdefault("render", {}).setdefault("pbl", {}).update(overrides)
+    folder.mkdir(parents=True, exist_ok=True)
+    out = folder / scene.name
+    out.write_bytes(tomli_w.dumps(data).encode())
+    return out
+
+
 def _run(code: str, *args) -> dict:
     r = subprocess.run([sys.executable, "-c", code, *map(str, args)], capture_output=True, text=True, cwd=ROOT,
                        env={**os.environ, "PYTHONWARNINGS": "ignore"})

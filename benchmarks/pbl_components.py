@@ -20,26 +20,10 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from pbl_bench import ROOT, RENDER, _run, rel_mse  # noqa: E402
+from pbl_bench import ROOT, RENDER, _run, rel_mse, with_pbl  # noqa: E402
 
 ORDERS_RENDER = RENDER.replace("RenderOptions(spp=int(spp), seed=int(seed), resolution=res, **kw)",
                                "RenderOptions(spp=int(spp), seed=int(seed), resolution=res, orders=sys.argv[9], **kw)")
-
-
-def as_given(scene: Path, folder: Path) -> Path:
-    """The scene with its media as given (no [render.pbl] similarity transform, whose layers are not the scattering
-    orders), written beside the cache's component renders; the scene itself where it sets none."""
-    import tomllib
-
-    import tomli_w
-
-    data = tomllib.loads(scene.read_text())
-    if data.get("render", {}).get("pbl", {}).get("similarity", "none") == "none":
-        return scene
-    data["render"]["pbl"]["similarity"] = "none"
-    out = folder / f"{scene.stem}.as_given.toml"
-    out.write_bytes(tomli_w.dumps(data).encode())
-    return out
 
 
 def main():
@@ -65,8 +49,9 @@ def main():
     for name in [s for s in args.scenes.split(",") if s]:
         scene = ROOT / "configs" / f"{name}.toml"
         pbl_out = out / f"{name}_pbl.exr"
-        _run(RENDER, as_given(scene, out), pbl_out, "pbl", args.pbl_spp, args.pbl_seed, args.threads, res,
-             args.cache)
+        # the media as given: the similarity transform's layers are not the scattering orders
+        as_given = with_pbl(scene, out / "as_given", {"similarity": "none"})
+        _run(RENDER, as_given, pbl_out, "pbl", args.pbl_spp, args.pbl_seed, args.threads, res, args.cache)
         layers = {k: v.astype(np.float64) for k, v in read_layers(pbl_out).items()}
         refs = {}
         for orders in ("1", "2", "3+"):

@@ -25,7 +25,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from pbl_ab import _value  # noqa: E402
+from pbl_bench import pbl_overrides  # noqa: E402
 
 
 def _vector(text: str) -> np.ndarray:
@@ -56,7 +56,7 @@ def main():
     args = ap.parse_args()
     path = Path(args.scene) if args.scene.endswith(".toml") else ROOT / "configs" / f"{args.scene}.toml"
     scene = C.load_scene(path)
-    over = dict((k.strip(), _value(v.strip())) for k, v in (kv.split("=") for kv in args.overrides))
+    over = pbl_overrides(",".join(args.overrides))
     pbl = scene.render.pbl.model_copy(update=over)
     scene = scene.model_copy(update={"render": scene.render.model_copy(update={"pbl": pbl})})
     bs = build_scene(scene, path, (64, 64))

@@ -5,6 +5,7 @@
         [--pbl-spp 1,2,4,8] [--volpath-spp 16,64,256,1024] [--ref-spp 16384] [--target 1e-3] [--memory-check]
         [--out bench-out] [--threads 2] [--cache DIR] [--pass-only]
         [--mitsuba PYTHON --mitsuba-spp 64,256,1024 --mitsuba-integrators volpath,volpathmis] [--reuse-curves JSON]
+        [--set k=v ...]
 
 For each scene, every render in its own process (each warms numba's cache at 8x8 first, so that compiling is not
 timed; peak memory is per process):
@@ -18,6 +19,7 @@ timed; peak memory is per process):
   5. with --reuse-curves, the volpath and Mitsuba curves of an earlier run's pbl_speed.json instead (they do not
      depend on pbl's code; the reference must be the same, as it is from the cache);
   6. with --pass-only, step 2 alone (no reference): <out>/pass_cost.md;
+  6a. with --set k=v, pbl renders the scene with that [render.pbl] setting (a copy in <out>/scenes/);
   6b. pbl's time at each of its renders over the time volpath takes to the same error (a second table), and pbl's
      relMSE over 8 x 8 blocks at its longest render (an upper estimate of its bias: noise falls 64-fold there);
   7. with --mitsuba (the python of a venv with mitsuba installed), Mitsuba 3's error against time for each of
@@ -37,7 +39,8 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from pbl_bench import RENDER, ROOT, _run, block_rel_mse, rel_mse, scenes_with_references  # noqa: E402
+from pbl_bench import (RENDER, ROOT, _run, block_rel_mse, pbl_overrides, rel_mse,  # noqa: E402
+                       scenes_with_references, with_pbl)
 
 
 def time_to(points: list[tuple[float, float]], target: float, extrapolate: bool) -> float | None:
@@ -83,8 +86,11 @@ def main():
                     "16 spp for each scene, no reference (writes <out>/pass_cost.md)")
     ap.add_argument("--reuse-curves", type=Path, help="an earlier run's pbl_speed.json: its volpath and Mitsuba "
                     "curves of the same scene and resolution are taken as they are (pbl is rendered anew)")
+    ap.add_argument("--set", action="append", default=[], dest="overrides",
+                    help="k=v: a [render.pbl] setting for pbl's renders (repeatable; volpath renders the scene as is)")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
+    args.pbl = pbl_overrides(",".join(args.overrides))
     res = f"{args.resolution}x{args.resolution}"
     if args.pass_only:
         pass_cost(args, res)
@@ -99,7 +105,8 @@ def main():
                 continue
             pts = []
             for spp in (int(v) for v in spps.split(",")):
-                s, img = render(scene, method, spp, 1, res, args.threads, args.cache, args.out / f"{name}_{method}.exr")
+                s, img = render(with_pbl(scene, args.out / "scenes", args.pbl) if method == "pbl" else scene, method,
+                                spp, 1, res, args.threads, args.cache, args.out / f"{name}_{method}.exr")
                 pts.append((s["time_s"], max(rel_mse(img, ref) - ref_noise, 1e-12), spp, s["peak_memory_mb"]))
                 print(f"{name} {method} {spp} spp: {s['time_s']:.2f} s, relMSE {pts[-1][1]:.5f}", flush=True)
             curves[method] = pts
@@ -125,7 +132,8 @@ def main():
             row.update(mitsuba_best=best, mitsuba_to_target_s=mitsuba[best],
                        speed_up_over_mitsuba=mitsuba[best] / tp if tp and mitsuba[best] else None)
         if args.memory_check:
-            s, _ = render(scene, "pbl", 1, 1, "512x512", args.threads, args.cache, args.out / f"{name}_512.exr")
+            s, _ = render(with_pbl(scene, args.out / "scenes", args.pbl), "pbl", 1, 1, "512x512", args.threads,
+                          args.cache, args.out / f"{name}_512.exr")
             row["pbl_512_peak_mb"] = s["peak_memory_mb"]
         rows.append(row)
         _plot(args.out / f"pbl_speed_{name}.png", name, curves, args.target)
@@ -169,7 +177,8 @@ def pass_cost(args, res: str):
     lines = ["| scene | pass s | volpath 16 spp s | pass / volpath 16 |", "|---|---|---|---|"]
     for name in args.scenes.split(","):
         scene = ROOT / "configs" / f"{name}.toml"
-        t = {m: render(scene, m, spp, 1, res, args.threads, args.cache, args.out / f"{name}_{m}.exr")[0]["time_s"]
+        scenes = {"pbl": with_pbl(scene, args.out / "scenes", args.pbl), "volpath": scene}
+        t = {m: render(scenes[m], m, spp, 1, res, args.threads, args.cache, args.out / f"{name}_{m}.exr")[0]["time_s"]
              for m, spp in (("pbl", 1), ("volpath", 16))}
         lines.append(f"| {name} | {t['pbl']:.2f} | {t['volpath']:.2f} | {t['pbl'] / t['volpath']:.1f}× |")
         print(lines[-1], flush=True)
