@@ -8,7 +8,7 @@ from pathlib import Path
 from pbvol_cli import config as C
 from pbvol_cli.geometry.scene_build import MediumInfo
 from pbvol_cli.physics.phase import KINDS
-from pbvol_cli.physics.similarity import delta_eddington_coefficients, transformed
+from pbvol_cli.pointbased.similarity import delta_eddington_coefficients, transformed
 
 
 def media_of_file(path: Path) -> tuple[list[MediumInfo], C.LutSettings]:
@@ -25,7 +25,7 @@ def media_of_file(path: Path) -> tuple[list[MediumInfo], C.LutSettings]:
 
 
 def _delta_eddington(m: MediumInfo) -> MediumInfo:
-    """m as [render.pbl] similarity = "delta-eddington" renders it (physics/similarity.py)."""
+    """m as [render.pbl] similarity = "delta-eddington" renders it (pointbased/similarity.py)."""
     if not transformed(m.material.phase, m.material.g):
         return m
     sigma_s, g = delta_eddington_coefficients(m.sigma_s, m.material.g)

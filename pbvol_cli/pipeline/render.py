@@ -412,9 +412,9 @@ class LightSide:
 
 
 def pbl_media(built, pbl, method: str):
-    """The scene as the point-based method renders it: its media after pbl.similarity (physics/similarity.py), for
+    """The scene as the point-based method renders it: its media after pbl.similarity (pointbased/similarity.py), for
     --method pbl only (the dipole's single scattering takes the media as given). built itself when unchanged."""
-    from pbvol_cli.physics.similarity import delta_eddington
+    from pbvol_cli.pointbased.similarity import delta_eddington
 
     if method == "pbl" and pbl.similarity == "delta-eddington":
         return replace(built, media=delta_eddington(built.media))

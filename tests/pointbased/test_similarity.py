@@ -6,7 +6,7 @@ import pytest
 
 from pbvol_cli.geometry.scene_build import MED_COLS, MED_G, MED_MAJORANT, MED_PHASE, MED_SIGMA_A, MED_SIGMA_S
 from pbvol_cli.physics.phase import KINDS
-from pbvol_cli.physics.similarity import delta_eddington
+from pbvol_cli.pointbased.similarity import delta_eddington
 
 
 def _row(phase: str, g: float, sigma_a, sigma_s) -> np.ndarray:
