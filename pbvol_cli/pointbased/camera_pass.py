@@ -192,7 +192,7 @@ def _interact_rays(lo, hi, surfaces, lights, rays, hits, limits, emit, children,
 
 
 # surface_paths = 0 (auto): the first two passes trace AUTO_FIRST_PATHS paths per pixel; from then on each pixel's
-# count is sqrt(PASS_COST_RATIO S1_p / M) (auto_surface_paths), from the passes before it
+# count follows its measured variances, the passes already in the image and those still to come (auto_surface_paths)
 AUTO_FIRST_PATHS = 8
 CAMERA_CHUNK = 1 << 16  # camera paths traced together: a generation holds a few kB per ray (children, shadow rays,
 # contributions), and splitting at glass multiplies the rays; 2^18 made a 512 x 512 pass peak 0.7 GB above its
@@ -206,14 +206,24 @@ PASS_COST_RATIO = 20.0  # a pass's medium work in surface paths per pixel (docs/
 # (k goes as its square root), and a constant keeps the image independent of timings
 
 
-def auto_surface_paths(s1, m: float, max_paths: int = AUTO_MAX_PATHS):
-    """Camera paths for the next pass, for one pixel or an array of them. A pass whose pixel p traces k_p paths
-    costs about c (sum k_p + R n) (R = PASS_COST_RATIO, n pixels) and leaves a variance sum S1_p / k_p + M_p (S1_p:
-    one surface path's, M_p: the medium evaluation's, both relative as compare's relMSE); at equal time the error
-    is least at k_p = sqrt(R S1_p / M), M the pixels' mean M_p (for one pixel: k = sqrt(R S1 / M))."""
+def auto_surface_paths(s1, m: float, max_paths: int = AUTO_MAX_PATHS, before: tuple[float, float] = (0.0, 0.0),
+                       remaining: int | None = None):
+    """Camera paths for each of the next passes, for one pixel or an array of them. A pass whose pixel p traces
+    k_p paths costs about c (sum k_p + R n) (R = PASS_COST_RATIO, n pixels) and leaves a variance sum S1_p / k_p +
+    M_p (S1_p: one surface path's, M_p: the medium evaluation's, both relative as compare's relMSE). The image is
+    the mean of its passes with equal weights, so with passes already in it (before = (A, C): their variance sum
+    and cost per pixel, the pixels' means, cost in surface paths) and `remaining` passes to come at k_p each, its
+    error x time (A + r (S1_p / k_p + M)) (C + r (k_p + R)), summed over the pixels, is least at
+    k_p = sqrt(S1_p (C + r R) / (A + r M)), M the pixels' mean M_p. With no passes before, or remaining None (as
+    many as it takes), that is sqrt(R S1_p / M): a pass's own optimum. With some before and few to come it is
+    less: paths added now cannot lower the noise the first passes left in the image."""
     s1 = np.asarray(s1, float)
-    if m > 0.0:
-        k = np.clip(np.rint(np.sqrt(PASS_COST_RATIO * np.maximum(s1, 0.0) / m)), 1, max_paths)
+    a, c = before
+    r = remaining
+    den = (a + r * m) if r is not None else m
+    if den > 0.0:
+        ratio = (c + r * PASS_COST_RATIO) / den if r is not None else PASS_COST_RATIO / m
+        k = np.clip(np.rint(np.sqrt(ratio * np.maximum(s1, 0.0))), 1, max_paths)
     else:
         k = np.full(s1.shape, float(max_paths))
     k = np.where(s1 > 0.0, k, 1.0).astype(np.int64)
@@ -277,6 +287,7 @@ class PixelStatistics:
     def __init__(self, npix: int, width: int):
         self.width = width
         self.count = np.zeros(npix)  # surface paths traced per pixel
+        self.inv_count = np.zeros(npix)  # the sum over passes of 1 / the pixel's paths in the pass
         self.surface_sum, self.surface_sq = np.zeros((npix, 3)), np.zeros((npix, 3))
         self.medium_sum, self.medium_sq = np.zeros((npix, 3)), np.zeros((npix, 3))
         self.passes = 0
@@ -286,6 +297,7 @@ class PixelStatistics:
         """A pass: each pixel's path count k, the sum and sum of squares of its paths' surface light, and its
         medium estimate."""
         self.count += k
+        self.inv_count += 1.0 / k
         self.surface_sum += surface_sum
         self.surface_sq += surface_sq
         self.medium_sum += medium
@@ -316,13 +328,17 @@ class PixelStatistics:
         b = float(np.mean([d[0] for d in self.diffuse]))
         return diffuse_share(b, float(np.mean(s1 / k)) + m, self.diffuse[-1][1])
 
-    def next_paths(self, image) -> np.ndarray | None:
-        """Each pixel's path count for the next pass, or None while two passes are not yet in. The counts' mean is
-        at most AUTO_MAX_PATHS."""
+    def next_paths(self, image, remaining: int | None = None) -> np.ndarray | None:
+        """Each pixel's path count for the next pass, or None while two passes are not yet in; remaining: the passes
+        still to come, the next one included (None: as many as it takes). The counts' mean is at most
+        AUTO_MAX_PATHS."""
         if self.passes < 2 or self.count.max() < 2:
             return None
         s1, m = self.variances(image)
-        k = auto_surface_paths(_spread(s1, self.width), m, AUTO_MAX_PIXEL_PATHS)
+        # what the passes so far left in the image (their variance sum S1_p sum_q 1 / k_q + passes M) and cost
+        before = (float(np.mean(s1 * self.inv_count)) + self.passes * m,
+                  float(self.count.mean()) + self.passes * PASS_COST_RATIO)
+        k = auto_surface_paths(_spread(s1, self.width), m, AUTO_MAX_PIXEL_PATHS, before, remaining)
         if k.mean() > AUTO_MAX_PATHS:
             k = np.maximum(1, (k * (AUTO_MAX_PATHS / k.mean())).astype(np.int64))
         return k
@@ -353,9 +369,10 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     random per pixel and pass, also evaluates the medium, its medium terms weighted by k_p. The pixel's estimate
     stays unbiased and the medium's cost per pass is that of one path, while the surfaces' noise (path traced like
     volpath's) falls k_p times. k_p is pbl.surface_paths for every pixel, or with 0 (auto) chosen per pixel and pass
-    from the variances measured on the passes before it (auto_surface_paths): a small light's mirror image on a
-    glass takes hundreds of paths, a pixel of the medium alone one. bounced_terms: the estimators that evaluate the
-    bounced samples (all three make the bounced layer; tests take a subset). time_limit (seconds): no pass starts
+    from the variances measured on the passes before it and the passes still to come of the spp
+    (auto_surface_paths): a small light's mirror image on a glass takes hundreds of paths, a pixel of the medium
+    alone one. bounced_terms: the estimators that evaluate the bounced samples (all three make the bounced layer;
+    tests take a subset). time_limit (seconds): no pass starts
     after it. entry: a term evaluated where camera paths enter a medium, a layer of its own (entry.layer):
     entry.for_pass(p).radiance(m, points, eta) is the light leaving the boundary there over the Fresnel
     transmittance (dipole/hierarchy.DiffusionPasses). segment: a term evaluated along each segment a camera path
@@ -395,7 +412,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         if pbl.surface_paths > 0:
             k = np.full(npix, pbl.surface_paths, np.int64)
         else:  # auto: from the passes so far, once two are in (the image so far weighs them as relMSE does)
-            k = stats.next_paths(image_so_far) if image_so_far is not None else None
+            k = stats.next_paths(image_so_far, spp - passes + 1) if image_so_far is not None else None
             if k is None:
                 k = np.full(npix, AUTO_FIRST_PATHS, np.int64)
         ks.append(float(k.mean()))

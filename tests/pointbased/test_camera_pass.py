@@ -104,6 +104,27 @@ def test_auto_surface_paths_minimises_the_error_at_equal_time():
     assert auto_surface_paths(0.06, 0.003) > 8 > auto_surface_paths(0.05, 0.03)
 
 
+def test_auto_surface_paths_count_the_passes_already_in_the_image():
+    """With passes already in the image (their variance sum A and cost C per pixel) and r passes to come, the count
+    is the k of least (A + r (S1 / k + M)) (C + r (k + R)), brute-forced; two passes of 8 paths of a noisy surface
+    over a quiet medium leave less to gain: 20 paths for the last two of four passes where a pass alone would take
+    the cap. No passes before, or r None, give a pass's own optimum."""
+    R = PASS_COST_RATIO
+    ks = np.arange(1, 1025)
+    for s1, m, first in ((0.06, 0.003, (8, 8)), (0.1, 1e-5, (8, 8)), (0.02, 0.02, (8, 8)), (0.5, 0.001, (8, 30))):
+        A = sum(s1 / k + m for k in first)
+        C = sum(k + R for k in first)
+        for r in (1, 2, 6, 100):
+            cost = (A + r * (s1 / ks + m)) * (C + r * (ks + R))
+            k = auto_surface_paths(s1, m, 1024, (A, C), r)
+            assert cost[k - 1] <= 1.01 * cost.min(), (s1, m, first, r, k, ks[cost.argmin()])
+        assert auto_surface_paths(s1, m, 1024, (A, C), None) == auto_surface_paths(s1, m, 1024)
+        assert auto_surface_paths(s1, m, 1024, (0.0, 0.0), 3) == auto_surface_paths(s1, m, 1024)
+    s1, m = 0.1, 1e-5
+    assert auto_surface_paths(s1, m, 1024) > 128
+    assert auto_surface_paths(s1, m, 1024, (2 * (s1 / 8 + m), 2 * (8 + R)), 2) == 20
+
+
 def test_pixel_statistics_measure_the_variances_and_give_noisy_pixels_more_paths():
     """PixelStatistics: each pixel's surface-path variance (from all its paths) and the medium's pass-to-pass
     variance, relative as compare's relMSE, from synthetic passes of known variances (Gaussian, 50 x 100 pixels);
@@ -134,6 +155,12 @@ def test_pixel_statistics_measure_the_variances_and_give_noisy_pixels_more_paths
     assert abs(np.median(k[inner_quiet]) - optimum) <= 0.1 * optimum, np.median(k[inner_quiet])
     assert abs(np.median(k[noisy]) / np.median(k[inner_quiet]) - 4.0) < 0.4
     assert np.all(k[np.arange(npix) // W >= H - 8] == 1)
+    # with one pass to come the first passes' noise stays in the image: fewer paths, in the same proportions
+    k1 = st.next_paths(image, 1)
+    before = (np.mean(s1 * (1 / 8 + 1 / 8 + 1 + 1 / 3)) + 4 * m, np.mean(st.count) + 4 * PASS_COST_RATIO)
+    fewer = math.sqrt((before[1] + PASS_COST_RATIO) / (before[0] + m) * sd_s ** 2 / den)
+    assert fewer < 0.5 * optimum and abs(np.median(k1[inner_quiet]) - fewer) <= 0.1 * fewer + 1
+    assert abs(np.median(k1[noisy]) / np.median(k1[inner_quiet]) - 4.0) < 0.6
 
 
 def test_diffuse_share_minimises_the_error_at_equal_time():

@@ -95,19 +95,27 @@ def test_index_matched_furnace(tmp_path):
     the spread doubles). Sharing the smooth terms among points (radiance_cache.py) breaks that correlation too: at
     16 spp the centre reads 0.95-1.05 over seeds 0 and 7-11 (mean 0.990; per point 0.972-1.013, mean 0.993), so
     the mean of three seeds."""
+    centres = _furnace_centres(tmp_path, 0.0)
+    print("index-matched furnace, centre:", centres)
+    assert abs(np.mean(centres) - 1.0) < 0.05, centres
+
+
+def _furnace_centres(tmp_path, g: float, lut=None, **pbl) -> list:
+    """The centre of three seeds' renders (16 spp, one camera path per pass) of a non-absorbing sphere of mean cosine
+    g, 2 mean free paths across its radius, in an index-matched boundary under a white sky; pbl: more [render.pbl]
+    settings, lut: [render.lut]."""
     shape = {"type": "sphere", "radius": 1.0, "interface": "null",
-             "medium": {"albedo": 1.0, "mean_free_path": 0.5, "g": 0.0}}
+             "medium": {"albedo": 1.0, "mean_free_path": 0.5, "g": g}}
     scene = {"camera": camera((12, 12), position=(0, 0, 3.0), fov=30),
-             "render": {"spp": 16, "pbl": {"surface_paths": 1}},
+             "render": {"spp": 16, "pbl": {"surface_paths": 1, **pbl}, "lut": lut or {}},
              "lights": [{"type": "environment", "radiance": 1.0}], "shapes": [shape]}
     path = write_scene(tmp_path, scene)
     centres = []
     for seed in range(3):
         render_scene(path, tmp_path / "o.exr", RenderOptions(method="pbl", seed=seed, cache_dir=tmp_path,
                                                              quiet=True))
-        centres.append(read_exr(tmp_path / "o.exr")[0][4:8, 4:8].mean())
-    print("index-matched furnace, centre:", centres)
-    assert abs(np.mean(centres) - 1.0) < 0.05, centres
+        centres.append(float(read_exr(tmp_path / "o.exr")[0][4:8, 4:8].mean()))
+    return centres
 
 
 def test_delta_eddington_renders_the_transformed_medium(tmp_path):
@@ -135,18 +143,7 @@ def test_forward_scattering_furnace_with_delta_eddington(tmp_path):
     seeds, as the isotropic furnace above. It reads 0.971-0.983 (mean 0.979, the table at its default budget or
     this test's), without the transform 0.989-1.045 (mean 1.020): the transformed sphere is 0.38 mean free paths
     across its radius, where pbl's components read a little low (docs/pbl.md, section 11)."""
-    shape = {"type": "sphere", "radius": 1.0, "interface": "null",
-             "medium": {"albedo": 1.0, "mean_free_path": 0.5, "g": 0.9}}
-    scene = {"camera": camera((12, 12), position=(0, 0, 3.0), fov=30),
-             "render": {"spp": 16, "pbl": {"surface_paths": 1, "similarity": "delta-eddington"},
-                        "lut": {"collision_budget": 10_000_000}},
-             "lights": [{"type": "environment", "radiance": 1.0}], "shapes": [shape]}
-    path = write_scene(tmp_path, scene)
-    centres = []
-    for seed in range(3):
-        render_scene(path, tmp_path / "o.exr", RenderOptions(method="pbl", seed=seed, cache_dir=tmp_path,
-                                                             quiet=True))
-        centres.append(read_exr(tmp_path / "o.exr")[0][4:8, 4:8].mean())
+    centres = _furnace_centres(tmp_path, 0.9, {"collision_budget": 10_000_000}, similarity="delta-eddington")
     print("forward-scattering furnace, delta-Eddington, centre:", centres)
     assert abs(np.mean(centres) - 1.0) < 0.05, centres
 
