@@ -293,10 +293,15 @@ def energy_cells(cell_energy: np.ndarray, fraction: float = 0.99) -> np.ndarray:
 
 
 def relative_error(a: np.ndarray, b: np.ndarray, weights: np.ndarray, mask: np.ndarray | None = None) -> float:
-    """sqrt(sum w (a - b)^2 / sum w b^2) over (cells, dirs), cells restricted to mask."""
+    """sqrt(sum w (a - b)^2 / sum w b^2) over (cells, dirs), cells restricted to mask; 0 where both sums are 0 (a
+    table that caught no light, as a coarse one of a nearly black medium: nothing to be wrong about), inf where only
+    b's is."""
     if mask is not None:
         a, b, weights = a[mask], b[mask], weights[mask]
-    return float(np.sqrt(np.sum(weights * (a - b) ** 2) / np.sum(weights * b ** 2)))
+    num, den = float(np.sum(weights * (a - b) ** 2)), float(np.sum(weights * b ** 2))
+    if den == 0.0:
+        return 0.0 if num == 0.0 else math.inf
+    return math.sqrt(num / den)
 
 
 def resolve_particles(alpha: float, g: float, phase_kind: int, settings: TableSettings) -> TableSettings:

@@ -257,3 +257,14 @@ def test_first_collision_table_reproduces_the_double_scattering_kernel():
     # cells of 0.1-0.3 mfp blur the kernel); the bounds leave room for the Monte Carlo noise of the table
     assert got.sum() / want.sum() == pytest.approx(1.0, abs=0.02)
     assert np.median(np.abs(got / want - 1)) < 0.06
+
+
+def test_relative_error_of_a_table_without_light_is_zero_not_nan():
+    """A coarse table of a nearly black medium may catch no light at all: its quality metrics read 0 (no warning,
+    no NaN in the table's metadata); a table that misses light it should hold reads inf."""
+    from pbvol_cli.multiple_scattering.table import relative_error
+
+    zero, w = np.zeros((4, 3)), np.ones((4, 3))
+    assert relative_error(zero, zero, w) == 0.0
+    assert relative_error(np.ones((4, 3)), zero, w) == math.inf
+    assert relative_error(np.full((4, 3), 1.1), np.ones((4, 3)), w) == pytest.approx(0.1)
