@@ -240,6 +240,16 @@ def test_check_names_the_lights_a_path_tracer_cannot_bring_into_a_sealed_medium(
     assert notes([large]) == []
 
 
+def test_check_says_what_the_similarity_transform_does_to_each_medium(tmp_path):
+    scene = {**GOOD, "render": {"spp": 2, "pbl": {"similarity": "delta-eddington"}}}
+    d = json.loads(runner.invoke(app, ["check", str(write_scene(tmp_path, scene)), "--json"]).stdout)
+    assert d["notes"] == ["wax: pbl renders it as its delta-Eddington equivalent ([render.pbl] similarity: g 0.8 -> "
+                          "0.444, sigma_s x 0.36; docs/pbl.md, section 2)"]
+    iso = {**_with_shape(medium={"albedo": 0.9, "mean_free_path": 0.1, "g": 0.0}), "render": scene["render"]}
+    d = json.loads(runner.invoke(app, ["check", str(write_scene(tmp_path, iso)), "--json"]).stdout)
+    assert len(d["notes"]) == 1 and "leaves it as given (hg, g 0)" in d["notes"][0]
+
+
 def test_check_summarises_the_scene(tmp_path):
     path = write_scene(tmp_path, GOOD)
     r = runner.invoke(app, ["check", str(path)])

@@ -52,7 +52,28 @@ def describe(scene: C.Scene, path: Path) -> dict:
                                 f"multiple-scattering table's {2.0 * extent:g} ([render.lut] extent {extent:g}): pbl "
                                 "loses the light that diffuses farther (docs/pbl.md)")
     out["notes"] += _reach_notes(scene, b)
+    out["notes"] += _similarity_notes(scene, b)
     return out
+
+
+def _similarity_notes(scene: C.Scene, b) -> list[str]:
+    """What [render.pbl] similarity = "delta-eddington" does to each medium: pbl's image is of the transformed one
+    (pointbased/similarity.py), and a medium it cannot transform is rendered as given."""
+    from pbvol_cli.pointbased.similarity import delta_eddington_coefficients, transformed
+
+    if scene.render.pbl.similarity != "delta-eddington":
+        return []
+    notes = []
+    for mi in b.medium_info:
+        g = mi.material.g
+        if transformed(mi.material.phase, g):
+            _, g2 = delta_eddington_coefficients(mi.sigma_s, g)
+            notes.append(f"{mi.label}: pbl renders it as its delta-Eddington equivalent ([render.pbl] similarity: "
+                         f"g {g:g} -> {g2:.3g}, sigma_s x {1.0 - g * g:.3g}; docs/pbl.md, section 2)")
+        else:
+            notes.append(f"{mi.label}: [render.pbl] similarity leaves it as given ({mi.material.phase}, g {g:g}): "
+                         "only Henyey-Greenstein media of g > 0 have a forward peak to fold into the beams")
+    return notes
 
 
 DIFFUSION_THICKNESS = 10.0  # reduced mean free paths: a thinner body is far from the dipole's half-space
