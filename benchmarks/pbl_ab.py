@@ -5,7 +5,8 @@
         --set cache_cell=0 --set cache_cell=0.5 [--set 'kmax=2,cache_cell=0.5'] [--threads 2] [--cache DIR]
 
 Each --set is one variant: comma-separated [render.pbl] overrides (numbers, true/false or words). Each variant
-renders the scene once per seed (each in this process after a warm-up render, so that compiling is not timed) and
+renders the scene once per seed (each in this process after a warm-up render of the same size, so that compiling
+and loading kernels are not timed) and
 prints the mean time per render, the noise (relMSE between two seeds' images / 2: one image's variance in relMSE
 units, where the method is unbiased) and the image and layer means and noise over the seeds (each layer's on its own
 scale, then on the image's: the second says which layer the image's noise comes from): a variant that keeps the
@@ -54,7 +55,9 @@ def main():
         spath = tmp / path.name
         spath.write_bytes(tomli_w.dumps(scene).encode())
         opts = dict(method="pbl", threads=args.threads, cache_dir=args.cache, quiet=True)
-        render_scene(spath, tmp / "warm.exr", RenderOptions(spp=1, resolution=(8, 8), **opts))
+        # warm-up at the measured size and up to 3 passes (the automatic paths and shares start at the third): an
+        # 8 x 8 one left kernels for the first timed render to load (the first variant read up to 35 % slow)
+        render_scene(spath, tmp / "warm.exr", RenderOptions(spp=min(args.spp, 3), seed=0, resolution=res, **opts))
         imgs, times, layers, planes = [], [], [], []
         for seed in seeds:
             out = tmp / f"o{seed}.exr"
