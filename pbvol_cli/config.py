@@ -414,7 +414,7 @@ class PblSettings(Strict):
                             "(0: a new set every pass; 1: the cached set only)")
     bounced_passes: Int = Field(4, ge=1, le=4096, description="passes that share one set of bounced samples, built "
                                 "from the light samples of the first of them (1: every pass its own)")
-    roulette: Num = Field(0.1, ge=0, description="camera branches of weight below this evaluate the medium's "
+    roulette: Num = Field(0.3, ge=0, description="camera branches of weight below this evaluate the medium's "
                           "smooth terms (double, multiple, bounced; in a ray-marched medium every term) with "
                           "probability weight / roulette (0: always)")
     roulette_single: Num = Field(0.02, ge=0, description="camera branches of weight below this evaluate single "
