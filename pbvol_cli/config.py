@@ -419,6 +419,9 @@ class PblSettings(Strict):
                           "probability weight / roulette (0: always)")
     roulette_single: Num = Field(0.02, ge=0, description="camera branches of weight below this evaluate single "
                                  "scattering with probability weight / roulette_single (0: always)")
+    surface_roulette: Num = Field(0.01, ge=0, description="camera branches of weight below this (a glass's "
+                                  "repeated reflections) are followed with probability weight / surface_roulette, "
+                                  "their weight divided by it (0: every branch above 1e-5)")
     surface_paths: Int = Field(0, ge=0, le=4096, description="camera paths per pixel and pass: the surfaces (path "
                                "traced, cheap) take them all, the medium one of them chosen at random (weighted: "
                                "unbiased); 0: auto, 8 for the first two passes, then per pass from the surfaces' and "

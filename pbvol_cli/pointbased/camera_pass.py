@@ -29,7 +29,7 @@ from pbvol_cli.geometry.scene_build import (DIELECTRIC, DIFFUSE, MIRROR, NULL, S
                                            SURF_TYPE, BuiltScene)
 from pbvol_cli.physics.fresnel import reflect, refract
 from pbvol_cli.physics.lights import ENVIRONMENT, LIGHT_RGB, LIGHT_TYPE, emitted_toward, light_sample
-from pbvol_cli.physics.sampling import cosine_hemisphere, rand
+from pbvol_cli.physics.sampling import cosine_hemisphere, mix64, rand
 from pbvol_cli.pointbased.gather import (LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_SINGLE, DeferredSingle, eval_segments,
                                          gather_settings, segment_planes)
 from pbvol_cli.pointbased.radiance_cache import TermShares, cache_settings
@@ -55,6 +55,8 @@ PathLimits = namedtuple("PathLimits", ["eps", "max_split_depth", "max_diffuse", 
 
 # Numba pitfall: arrays unpacked from a tuple inside a parallel function lose their writes in prange (numba
 # 0.68). The parallel kernel therefore only loops over chunks and calls an inner function that takes the tuples.
+_ROULETTE_STREAM = np.uint64(0xD1B54A32D192ED03)  # a child's survival draw, apart from the numbers its path uses
+_INV_2_53 = 1.0 / 9007199254740992.0
 RAY_CHUNK = 256  # rays a kernel call handles: the bundles' arrays are unpacked once per call, not per ray
 
 
@@ -496,19 +498,39 @@ def add_rows(target, index, values):
             target[index[j], c] += values[j, c]
 
 
+@njit(inline="always", cache=True)
+def _child_state(parent_state, slot):
+    """The random state a child in `slot` starts from (its parent's, turned per slot)."""
+    return parent_state ^ (np.uint64(0x9E37) * np.uint64(slot % 2 + 1))
+
+
 @njit(parallel=True, cache=True)
-def _next_rays(children, ng, depth, pixel, evm, path, kpaths, rng, min_beta):
+def _next_rays(children, ng, depth, pixel, evm, path, kpaths, rng, min_beta, roulette):
     """The next generation of camera rays: the children (Children, slot 2 i + 1 the transmitted child of ray i)
     that exist and carry more than min_beta in some channel, with what they inherit from their parent ray i (the
-    surface normal ng there, the depth + 1, pixel, evm, path, kpaths and the random state, turned per slot).
+    surface normal ng there, the depth + 1, pixel, evm, path, kpaths and the random state, turned per slot). A
+    child of weight b below `roulette` (its largest channel) goes on with probability b / roulette, its weight
+    divided by it (Russian roulette: unbiased).
     Returns (slots, pos, dir, beta, medium, state, depth, pixel, evm, path, kpaths, n_start, rng)."""
     beta = children.beta
     n = 0
     slots = np.empty(beta.shape[0], np.int64)
+    boost = np.empty(beta.shape[0])  # 1 / the child's survival probability
     for s in range(beta.shape[0]):
-        if children.ok[s] and max(beta[s, 0], max(beta[s, 1], beta[s, 2])) > min_beta:
-            slots[n] = s
-            n += 1
+        if not children.ok[s]:
+            continue
+        b = max(beta[s, 0], max(beta[s, 1], beta[s, 2]))
+        if b <= min_beta:
+            continue
+        q = 1.0
+        if b < roulette:  # its own uniform number: the child's random state mixed with a stream of its own
+            q = b / roulette
+            z = mix64(_child_state(rng[s >> 1], s) ^ _ROULETTE_STREAM)
+            if (z >> np.uint64(11)) * _INV_2_53 >= q:
+                continue
+        slots[n] = s
+        boost[n] = 1.0 / q
+        n += 1
     slots = slots[:n]
     o_pos, o_dir, o_beta, o_start = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
     o_medium, o_state, o_depth = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
@@ -520,11 +542,11 @@ def _next_rays(children, ng, depth, pixel, evm, path, kpaths, rng, min_beta):
         for c in range(3):
             o_pos[j, c] = children.pos[s, c]
             o_dir[j, c] = children.dir[s, c]
-            o_beta[j, c] = beta[s, c]
+            o_beta[j, c] = beta[s, c] * boost[j]
             o_start[j, c] = ng[i, c]  # a child leaves the surface its parent met
         o_medium[j], o_state[j], o_depth[j] = children.medium[s], children.state[s], depth[i] + 1
         o_pixel[j], o_evm[j], o_path[j], o_kpaths[j] = pixel[i], evm[i], path[i], kpaths[i]
-        o_rng[j] = rng[i] ^ (np.uint64(0x9E37) * np.uint64(s % 2 + 1))
+        o_rng[j] = _child_state(rng[i], s)
     return (slots, o_pos, o_dir, o_beta, o_medium, o_state, o_depth, o_pixel, o_evm, o_path, o_kpaths, o_start,
             o_rng)
 
@@ -691,7 +713,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
         add_rows(path_surface, path, emit)
         parent_dirs, parent_surf, parent_medium = dirs, surf, medium
         slots, pos, dirs, beta, medium, state, depth, pixel, evm, path, kpaths, n_start, rng = _next_rays(
-            children, ng, depth, pixel, evm, path, kpaths, rng, 1e-5)
+            children, ng, depth, pixel, evm, path, kpaths, rng, 1e-5, pbl.surface_roulette)
         if entry is not None:
             entered = _entered(bs.surfaces, slots, slots >> 1, parent_surf, parent_dirs, ng, parent_medium, medium)
     return path_surface

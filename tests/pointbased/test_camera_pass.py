@@ -266,13 +266,14 @@ def test_auto_surface_paths_follow_the_noise_and_keep_the_image(tmp_path):
     assert read_exr(tmp_path / "d.exr")[1]["surface_paths_per_pass"] == "8,8,1"
 
 
-@pytest.mark.parametrize("setting", ["roulette_single", "roulette"])
+@pytest.mark.parametrize("setting", ["roulette_single", "roulette", "surface_roulette"])
 def test_roulette_on_weak_branches_keeps_every_layers_mean(tmp_path, setting):
-    """roulette_single (single scattering) and roulette (the smooth terms) play Russian roulette on weak camera
-    branches, each with a threshold of its own. Inside a dielectric sphere the internal reflections are such
-    branches (weight about F = 0.04): at a threshold of 1 every branch below full weight plays, the internal legs
-    survive 1 in 25 with 25x the weight, and the single and double layers' means stay those of a threshold of 0
-    (no roulette) within 4 standard errors of the seed-to-seed spread."""
+    """roulette_single (single scattering), roulette (the smooth terms) and surface_roulette (whether a branch is
+    followed at all) play Russian roulette on weak camera branches, each with a threshold of its own. Inside a
+    dielectric sphere the internal reflections are such branches (weight about F = 0.04): at a threshold of 1 every
+    branch below full weight plays, the internal legs survive 1 in 25 with 25x the weight, and the single, double
+    and surface layers' means stay those of a threshold of 0 (no roulette) within 4 standard errors of the
+    seed-to-seed spread."""
     scene = medium_sphere_scene(surface_samples=800, segments_per_beam=4, bounce_samples=64,
                                 components=["single", "double"])
     scene["shapes"][0].update(interface="dielectric", eta=1.5)
@@ -280,12 +281,12 @@ def test_roulette_on_weak_branches_keeps_every_layers_mean(tmp_path, setting):
     means = {}
     for threshold in (0.0, 1.0):
         scene["render"]["pbl"][setting] = threshold
-        runs = [[read_layers(out)[c].astype(float).mean() for c in ("single", "double")]
+        runs = [[read_layers(out)[c].astype(float).mean() for c in ("single", "double", "surface")]
                 for out in _seed_renders(tmp_path, scene, spp=2, seeds=range(6))]
         means[threshold] = np.array(runs)  # (seed, layer)
     a, b = means[0.0], means[1.0]
     se = np.hypot(a.std(0, ddof=1), b.std(0, ddof=1)) / math.sqrt(len(a))
-    print(setting, "single, double: no roulette", a.mean(0), "roulette 1", b.mean(0), "se", se)
+    print(setting, "single, double, surface: no roulette", a.mean(0), "roulette 1", b.mean(0), "se", se)
     assert np.all(a.mean(0) > 0) and np.all(se > 0)
     assert np.all(np.abs(a.mean(0) - b.mean(0)) < 4 * se), (a.mean(0), b.mean(0), se)
 
