@@ -202,6 +202,7 @@ CAMERA_CHUNK = 1 << 16  # camera paths traced together: a generation holds a few
 SURFACE_CHUNK = 1 << 15  # surface-only camera paths traced together: they share nothing within a batch (no bins),
 # and a 512 x 512 pass on the wine glass under the sky peaked in their batches: 944-948 MiB at 2^16, 865-867 at
 # 2^15, the same image and time (docs/pbl.md, memory)
+PILOT_FIRST_SAMPLE = 1 << 40  # the pilot's sample indices (pilot_paths): past any a pass uses, its streams apart
 AUTO_MAX_PATHS = 128  # the mean over the pixels, at most
 AUTO_MAX_PIXEL_PATHS = 1024  # one pixel's, at most (a small light's mirror image on glass wants hundreds)
 PASS_COST_RATIO = 20.0  # a pass's medium work in surface paths per pixel (docs/pbl.md). The optimum is flat in it
@@ -230,6 +231,20 @@ def auto_surface_paths(s1, m: float, max_paths: int = AUTO_MAX_PATHS, before: tu
         k = np.full(s1.shape, float(max_paths))
     k = np.where(s1 > 0.0, k, 1.0).astype(np.int64)
     return int(k) if k.ndim == 0 else k
+
+
+def pilot_surface_paths(s1: np.ndarray, width: int, mean_paths: int = AUTO_FIRST_PATHS) -> np.ndarray:
+    """The first passes' camera paths per pixel from a pilot's measured surface variances s1 (one path's, relative
+    as compare's relMSE, per pixel): as many paths in all as mean_paths in every pixel, one of them in every pixel
+    and the others spread as sqrt(s1) (the least sum of s1_p / k_p at a fixed sum of k_p), each pixel's s1 first
+    raised to its 3 x 3 neighbourhood's mean (a rare hit seen in one pixel is likely in its neighbours); at most
+    AUTO_MAX_PIXEL_PATHS. With no variance anywhere, mean_paths everywhere. (Half of them in every pixel read
+    more error at less time: docs/pbl.md, section 9.)"""
+    w = np.sqrt(np.maximum(_spread(np.asarray(s1, float), width), 0.0))
+    if not np.any(w > 0):
+        return np.full(len(w), mean_paths, np.int64)
+    floor = 1
+    return np.minimum(floor + np.rint((mean_paths - floor) * w / w.mean()), AUTO_MAX_PIXEL_PATHS).astype(np.int64)
 
 
 DIFFUSE_COST = 0.3  # the smooth terms after a diffuse bounce over the rest of a pass's cost, as measured on the
@@ -406,6 +421,9 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     done, first_sample = first_path_indices(pbl.surface_paths, first_pass, npix)
     samples_so_far = np.full(npix, first_sample, np.int64)  # each pixel's (its next path's sample index)
     passes = 0
+    first_k = None  # the first two passes' counts (auto: from a pilot, or AUTO_FIRST_PATHS)
+    if pbl.surface_paths == 0 and pbl.pilot_paths > 0 and entry is None and segment is None:
+        first_k = _pilot(bs, caster, pool, threads, seed, npix, W, pbl, settings, settings_b)
     for p in range(first_pass, first_pass + spp):
         if time_limit is not None and passes > 0 and time.perf_counter() - t0 > time_limit:
             break
@@ -416,7 +434,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         else:  # auto: from the passes so far, once two are in (the image so far weighs them as relMSE does)
             k = stats.next_paths(image_so_far, spp - passes + 1) if image_so_far is not None else None
             if k is None:
-                k = np.full(npix, AUTO_FIRST_PATHS, np.int64)
+                k = first_k if first_k is not None else np.full(npix, AUTO_FIRST_PATHS, np.int64)
         ks.append(float(k.mean()))
         # (like the auto counts, the share follows the passes before: with a fixed count k every ray plays, so that
         # a part of a render repeats its passes bit for bit, docs/distributed.md)
@@ -471,6 +489,30 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     image = sum(out.values())
     return image, out, {"time_s": time.perf_counter() - t0, "spp": passes, "surface_paths": ks, "sums": sums,
                         "diffuse_shares": shares}
+
+
+def _pilot(bs, caster, pool, threads, seed: int, npix: int, width: int, pbl, settings, settings_b) -> np.ndarray:
+    """The first passes' path counts (pilot_surface_paths) from pbl.pilot_paths surface-only camera paths per pixel,
+    traced before them with sample indices and random streams of their own (from PILOT_FIRST_SAMPLE): the counts
+    are independent of the paths they weigh, so the image stays unbiased; the pilot's light is not in the image."""
+    per = pbl.pilot_paths
+    total, total_sq = np.zeros((npix, 3)), np.zeros((npix, 3))
+    ranks = np.repeat(np.arange(per, dtype=np.int64)[None, :], npix, axis=0).ravel()
+    pixels = np.repeat(np.arange(npix, dtype=np.int64), per)
+    kpaths = np.full(npix, per, np.int64)
+    for c0 in range(0, len(pixels), SURFACE_CHUNK):
+        part = slice(c0, c0 + SURFACE_CHUNK)
+        n = len(pixels[part])
+        layers = {name: np.zeros((npix, 3)) for name in (*COMPONENTS, "surface")}
+        light = _trace_batch(bs, caster, pool, threads, {}, seed, PILOT_FIRST_SAMPLE + c0, pixels[part],
+                             PILOT_FIRST_SAMPLE + ranks[part], np.zeros(n, np.bool_), kpaths[pixels[part]], npix,
+                             settings, settings_b, pbl, layers, DeferredSingle())
+        for ch in range(3):
+            total[:, ch] += np.bincount(pixels[part], weights=light[:, ch], minlength=npix)
+            total_sq[:, ch] += np.bincount(pixels[part], weights=light[:, ch] ** 2, minlength=npix)
+    mean = total / per
+    var = np.maximum(total_sq - total * mean, 0.0) / max(per - 1, 1)
+    return pilot_surface_paths((var / (mean ** 2 + 1e-2)).mean(axis=1), width)
 
 
 def first_path_indices(surface_paths: int, first_pass: int, npix: int) -> tuple[int, int]:
