@@ -376,8 +376,10 @@ class PblSettings(Strict):
     kmax: Int = Field(2, ge=1, le=64,
                       description="points per camera-ray segment in a medium for single scattering (eq. 9; the "
                       "paper's 4 cost more than their lower noise is worth: docs/pbl.md)")
-    kmax_scattered: Int = Field(1, ge=1, le=64,
-                                description="points per segment for double and multiple (smooth along rays)")
+    kmax_scattered: Int = Field(4, ge=1, le=64,
+                                description="points per segment at most for double, multiple and bounced light "
+                                "(smooth along rays): one per mean free path of the segment's least dense channel, "
+                                "at least one (dense media: their depth was most of the noise; docs/pbl.md)")
     cache_cell: Num = Field(0.5, ge=0, description="double, multiple and bounced light are evaluated once per "
                             "cell and direction bin, at a random camera point of it, and shared by the others (a blur "
                             "of about a cell): the cells' depth below the boundary, mean free paths of the densest "

@@ -121,6 +121,22 @@ def stratified_depth(k, n, xi, s, dmax, frac):
     return u * dmax, 1.0 / dmax
 
 
+MFP_PER_POINT = 1.0  # a segment's smooth terms take a point per this many mean free paths of its length (its least
+# dense channel's), up to kmax_scattered: one point in an optically thin segment, where the terms change little
+# along it and the surfaces' noise dominates; more in a dense one, where they fall steeply from the lit boundary
+# and the depth of a lone point was most of the medium's noise (docs/pbl.md, "Points along a dense segment")
+
+
+@njit(inline="always", cache=True)
+def points_on_segment(kmax, s, dmax):
+    """Points for the smooth terms on a segment of length dmax in a medium whose smallest extinction is s: one per
+    MFP_PER_POINT mean free paths (s dmax of them), at least 1, at most kmax (also for an unbounded segment)."""
+    tau = s * dmax
+    if not tau < kmax * MFP_PER_POINT:  # (also inf and NaN)
+        return kmax
+    return max(1, int(math.ceil(tau / MFP_PER_POINT)))
+
+
 @njit(inline="always", cache=True)
 def power_heuristic(pa, pb):
     a2 = pa * pa

@@ -15,7 +15,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from pbvol_cli.physics.sampling import rand, stratified_depth
+from pbvol_cli.physics.sampling import points_on_segment, rand, stratified_depth
 from pbvol_cli.pointbased.light_cut import double_multiple
 from pbvol_cli.pointbased.radiance_cache import CacheSettings, scattered_points, shared_terms
 from pbvol_cli.pointbased.single_scattering import single_scattering_at_points, single_scattering
@@ -54,7 +54,7 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, pla
     pplane = np.empty(4)
     # single scattering at kmax points; double and multiple (smooth along the ray) at their own k2 points
     for comp in range(2):
-        n = kmax if comp == 0 else k2
+        n = kmax if comp == 0 else points_on_segment(k2, s, dmax)
         if diffuse[i] > 0:
             n = settings.kmax_diffuse
         if (comp == 0 and not do_s) or (comp == 1 and not (do_d or do_m)):

@@ -27,7 +27,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from pbvol_cli.physics.sampling import rand, stratified_depth
+from pbvol_cli.physics.sampling import points_on_segment, rand, stratified_depth
 from pbvol_cli.pointbased.light_cut import double_multiple
 from pbvol_cli.pointbased.single_scattering import single_scattering
 from pbvol_cli.pointbased.volume_samples import Query, nearer_plane
@@ -91,8 +91,17 @@ boundary plane (m, 4) and the segment (m,) each belongs to."""
 
 
 @njit(cache=True)
-def _scattered_points(idx, pos, dirs, beta, tseg, rng, med, k2, planes, out):
-    """k2 points per segment idx[j] at stratified depths (as gather._segment's), into out (ScatteredPoints)."""
+def _segment_points(idx, tseg, med, k, per_mfp, counts):
+    """Each segment idx[j]'s points into counts[j]: k, or with per_mfp points_on_segment's (at most k)."""
+    sig_a, sig_s = med.sigma_a, med.sigma_s
+    s = min(sig_a[0] + sig_s[0], min(sig_a[1] + sig_s[1], sig_a[2] + sig_s[2]))
+    for j in range(idx.shape[0]):
+        counts[j] = points_on_segment(k, s, tseg[idx[j]]) if per_mfp else k
+
+
+@njit(cache=True)
+def _scattered_points(idx, pos, dirs, beta, tseg, rng, med, counts, planes, out):
+    """counts[j] points per segment idx[j] at stratified depths (as gather._segment's), into out (ScatteredPoints)."""
     sig_a, sig_s = med.sigma_a, med.sigma_s
     s = min(sig_a[0] + sig_s[0], min(sig_a[1] + sig_s[1], sig_a[2] + sig_s[2]))
     m = 0
@@ -101,13 +110,14 @@ def _scattered_points(idx, pos, dirs, beta, tseg, rng, med, k2, planes, out):
         dmax = tseg[i]
         frac = -math.expm1(-s * dmax) if s > 0.0 else 1.0
         xi = rand(rng, i)
-        for k in range(k2):
-            d, pdf = stratified_depth(k, k2, xi, s, dmax, frac)
+        n = counts[j]
+        for k in range(n):
+            d, pdf = stratified_depth(k, n, xi, s, dmax, frac)
             px, py, pz = pos[i, 0] + d * dirs[i, 0], pos[i, 1] + d * dirs[i, 1], pos[i, 2] + d * dirs[i, 2]
             out.pos[m, 0], out.pos[m, 1], out.pos[m, 2] = px, py, pz
             for c in range(3):
                 out.dir[m, c] = -dirs[i, c]
-                out.weight[m, c] = beta[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * d) / (pdf * k2)
+                out.weight[m, c] = beta[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * d) / (pdf * n)
             e = nearer_plane(planes, i, px, py, pz)
             for c in range(4):
                 out.plane[m, c] = planes[i, e + c]
@@ -115,13 +125,16 @@ def _scattered_points(idx, pos, dirs, beta, tseg, rng, med, k2, planes, out):
             m += 1
 
 
-def scattered_points(idx, pos, dirs, beta, tseg, rng, med, k, planes) -> ScatteredPoints:
-    """k points per segment idx[j] at gather._segment's stratified depths (drawing the segment's random number as
-    it does), its rays' arrays as there."""
-    m = len(idx) * k
+def scattered_points(idx, pos, dirs, beta, tseg, rng, med, k, planes, per_mfp: bool = False) -> ScatteredPoints:
+    """k points per segment idx[j] (per_mfp: points_on_segment's, at most k: the smooth terms') at
+    gather._segment's stratified depths (drawing the segment's random number as it does), its rays' arrays as
+    there."""
+    counts = np.empty(len(idx), np.int64)
+    _segment_points(idx, tseg, med, int(k), bool(per_mfp), counts)
+    m = int(counts.sum())
     pts = ScatteredPoints(np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 4)),
                           np.empty(m, np.int64))
-    _scattered_points(idx, pos, dirs, beta, tseg, rng, med, k, planes, pts)
+    _scattered_points(idx, pos, dirs, beta, tseg, rng, med, counts, planes, pts)
     return pts
 
 
@@ -266,7 +279,8 @@ def shared_terms(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settin
     bin both). Returns the number of evaluations."""
     if len(idx) == 0:
         return 0
-    pts = scattered_points(idx, pos, dirs, beta, tseg, rng, med, settings.kmax_scattered, planes)
+    pts = scattered_points(idx, pos, dirs, beta, tseg, rng, med, settings.kmax_scattered, planes,
+                           per_mfp=True)
     mfp = 1.0 / float(np.max(med.sigma_a + med.sigma_s))
     depth = pts.plane[:, 3] - np.einsum("ij,ij->i", pts.plane[:, :3], pts.pos)
     keys = bin_keys(pts.pos, pts.dir, depth, lateral_width(cache, mfp, vs), cache.cell * mfp, cache.directions,

@@ -8,11 +8,13 @@ import numpy as np
 
 from conftest import SPHERE_SIGMA_A, SPHERE_SIGMA_S, build, camera, medium_sphere_scene, smooth_layers
 from pbvol_cli.multiple_scattering.table import empty_table
+from pbvol_cli.physics.sampling import MFP_PER_POINT, points_on_segment
 from pbvol_cli.pointbased.gather import LAYER_DOUBLE, GatherSettings, eval_segments, segment_planes
 from pbvol_cli.pointbased.light_samples import place_light_samples
 from pbvol_cli.pointbased.radiance_cache import (TERM_SHARE_MIN, CacheSettings, TermShares, bin_groups, bin_keys,
-                                                 lateral_width, representatives, shared_terms, thread_parts)
-from pbvol_cli.pointbased.volume_samples import SampleSet
+                                                 lateral_width, representatives, scattered_points, shared_terms,
+                                                 thread_parts)
+from pbvol_cli.pointbased.volume_samples import Medium, SampleSet
 
 
 def test_bin_keys_split_space_into_cells_and_directions_into_cube_map_bins():
@@ -55,6 +57,42 @@ def test_bin_groups_number_the_bins_as_unique_rows_do():
     wide[::5, 0] = 2 ** 40  # ranges too wide for one 62-bit integer: the rows themselves
     assert np.array_equal(bin_groups(wide), np.unique(wide, axis=0, return_inverse=True)[1].ravel())
     assert len(bin_groups(keys[:0])) == 0
+
+
+def test_points_on_a_segment_follow_its_optical_length_up_to_kmax():
+    """A point per MFP_PER_POINT mean free paths of the least dense channel, at least one, at most kmax (an
+    unbounded segment and a medium without extinction included)."""
+    s = 2.0 / MFP_PER_POINT
+    counts = [points_on_segment(4, s, d) for d in (0.0, 0.1, 0.5, 0.5001, 1.0, 1.2, 1.9, 2.1, 50.0, math.inf)]
+    assert counts == [1, 1, 1, 2, 2, 3, 4, 4, 4, 4]
+    assert points_on_segment(4, 0.0, 10.0) == 1 and points_on_segment(1, s, 50.0) == 1
+    assert points_on_segment(8, s, 1.9) == 4
+
+
+def test_points_per_mean_free_path_keep_each_segments_transmittance_integral():
+    """Segments of 0.3 to 12 mean free paths take 1 to 4 points (per_mfp) or always 4; either way each segment's
+    points are owned by it and their weights (throughput x transmittance / (pdf x points)) sum, over the random
+    offset of the stratification, to the integral of the transmittance along it, per channel (the channels'
+    extinctions differ from the one the depths are drawn with)."""
+    med = Medium(np.array([0.1, 0.3, 0.05]), np.array([0.9, 1.2, 0.6]), 0, 0.0)  # least dense channel 0.65
+    s = 0.65
+    tseg = np.array([0.3, 2.0, 4.0, 12.0]) / s
+    n, draws = len(tseg), 4000
+    pos, dirs = np.zeros((n, 3)), np.tile([0.0, 0.0, 1.0], (n, 1))
+    beta = np.array([[1.0, 0.5, 2.0]] * n)
+    planes = segment_planes(pos, dirs, tseg, None, None)
+    st = med.sigma_a + med.sigma_s
+    exact = beta * (-np.expm1(-np.outer(tseg, st))) / st
+    for per_mfp, expected in ((True, [1, 2, 4, 4]), (False, [4, 4, 4, 4])):
+        total = np.zeros((n, 3))
+        rng = np.arange(1, n + 1, dtype=np.uint64) * np.uint64(7919)
+        for _ in range(draws):
+            pts = scattered_points(np.arange(n), pos, dirs, beta, tseg, rng, med, 4, planes, per_mfp=per_mfp)
+            assert np.bincount(pts.owner, minlength=n).tolist() == expected
+            assert np.all((pts.pos[:, 2] >= 0.0) & (pts.pos[:, 2] <= tseg[pts.owner] + 1e-12))
+            for c in range(3):
+                total[:, c] += np.bincount(pts.owner, weights=pts.weight[:, c], minlength=n)
+        np.testing.assert_allclose(total / draws, exact, rtol=0.01)
 
 
 def test_representatives_are_drawn_in_proportion_to_the_weights():
