@@ -365,15 +365,36 @@ def pass_paths(k: np.ndarray, first: np.ndarray):
     """A pass's camera paths in tracing order, sample by sample (every pixel's first, then the second of those
     with two or more...): (pixel, sample index of the pixel, index of the path among its pixel's in this pass).
     k: paths per pixel in this pass; first: each pixel's sample index so far."""
-    pixels, ranks = [], []
-    step = 64
-    for s0 in range(0, int(k.max()), step):
-        s = np.arange(s0, min(s0 + step, int(k.max())))[:, None]
-        rank, pix = np.nonzero(s < k[None, :])
-        pixels.append(pix)
-        ranks.append(rank + s0)
-    pixels, ranks = np.concatenate(pixels), np.concatenate(ranks)
+    k = np.ascontiguousarray(k, np.int64)
+    pixels, ranks = np.empty(int(k.sum()), np.int64), np.empty(int(k.sum()), np.int64)
+    _paths_by_rank(k, pixels, ranks)
     return pixels, first[pixels] + ranks, ranks
+
+
+@njit(cache=True)
+def _paths_by_rank(k, pixels, ranks):
+    """pass_paths' order in one pass over the paths (a counting sort by rank; a boolean matrix of the largest
+    count by the pixels cost 0.13 s a pass where a pixel takes 1024 paths): the paths of rank r start after those
+    of the lower ranks, pixels in order within a rank."""
+    top = 0
+    for p in range(k.shape[0]):
+        top = max(top, k[p])
+    start = np.zeros(top + 1, np.int64)
+    for p in range(k.shape[0]):
+        start[k[p]] += 1  # pixels with exactly k[p] paths
+    # pixels with more than r paths = those with r + 1 or more; rank r's paths start after all lower ranks'
+    more = k.shape[0] - start[0]
+    offset = np.zeros(top, np.int64)
+    acc = 0
+    for r in range(top):
+        offset[r] = acc
+        acc += more
+        more -= start[r + 1]
+    for p in range(k.shape[0]):
+        for r in range(k[p]):
+            j = offset[r]
+            pixels[j], ranks[j] = p, r
+            offset[r] = j + 1
 
 
 def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads: int, progress=None,

@@ -244,6 +244,12 @@ def test_pass_paths_run_sample_by_sample_and_continue_each_pixels_count():
     pixels, samples, ranks = pass_paths(k, np.array([10, 0, 5]))
     assert pixels.tolist() == [0, 1, 2, 0, 2, 0]
     assert samples.tolist() == [10, 0, 5, 11, 6, 12] and ranks.tolist() == [0, 0, 0, 1, 1, 2]
+    # any counts (zero and a pixel of many included): every (rank, pixel) pair once, ordered by rank, then pixel
+    k = np.random.default_rng(4).integers(0, 9, 500)
+    k[17] = 300
+    pixels, samples, ranks = pass_paths(k, np.zeros(500, np.int64))
+    expected = sorted((r, p) for p in range(500) for r in range(k[p]))
+    assert list(zip(ranks.tolist(), pixels.tolist())) == expected and samples.tolist() == ranks.tolist()
 
 
 def test_auto_surface_paths_follow_the_noise_and_keep_the_image(tmp_path):
