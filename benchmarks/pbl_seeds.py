@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
-import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -27,9 +26,8 @@ sys.path.insert(0, str(ROOT))
 
 def main():
     import numpy as np
-    import tomli_w
 
-    from pbl_bench import block_rel_mse, pbl_overrides, reference, rel_mse
+    from pbl_bench import block_rel_mse, pbl_overrides, reference, rel_mse, with_pbl
 
     from pbvol_cli.imageio import read_exr
     from pbvol_cli.pipeline.render import RenderOptions, render_scene
@@ -47,15 +45,11 @@ def main():
     path = ROOT / "configs" / f"{args.scene}.toml"
     res = f"{args.resolution}x{args.resolution}"
     ref, ref_noise = reference(path, res, args.ref_spp, args.threads, args.cache)
-    base = tomllib.loads(path.read_text())
     seeds = [int(s) for s in args.seeds.split(",")]
     tmp = Path(tempfile.mkdtemp())
     opts = dict(method="pbl", threads=args.threads, cache_dir=args.cache, quiet=True)
-    for variant in args.variants or [""]:
-        scene = {**base, "render": {**base.get("render", {})}}
-        scene["render"]["pbl"] = {**scene["render"].get("pbl", {}), **pbl_overrides(variant)}
-        spath = tmp / path.name
-        spath.write_bytes(tomli_w.dumps(scene).encode())
+    for i, variant in enumerate(args.variants or [""]):
+        spath = with_pbl(path, tmp / f"variant{i}", pbl_overrides(variant))
         times, errors, images = [], [], []
         for seed in seeds:
             render_scene(spath, tmp / "warm.exr", RenderOptions(spp=1, seed=seed, resolution=(8, 8), **opts))
