@@ -309,6 +309,7 @@ class PixelStatistics:
         self.medium_sum, self.medium_sq = np.zeros((npix, 3)), np.zeros((npix, 3))
         self.passes = 0
         self.diffuse = []  # (second moment a pixel, share) of the rays after a diffuse bounce, per measured pass
+        self.pilot_surface = None  # a pilot's relative variance of one surface path per pixel (Pilot), if any
 
     def add(self, k: np.ndarray, surface_sum, surface_sq, medium):
         """A pass: each pixel's path count k, the sum and sum of squares of its paths' surface light, and its
@@ -338,7 +339,14 @@ class PixelStatistics:
 
     def next_diffuse_share(self, image, k: np.ndarray) -> float:
         """The next pass's share of the rays after a diffuse bounce that evaluate the smooth terms (diffuse_share),
-        the pass tracing k paths per pixel; 1 until two passes and a measured second moment are in."""
+        the pass tracing k paths per pixel; 1 until two passes and a measured second moment are in. With a pilot
+        the second pass takes the share from the first pass's rays (measured over the pilot's image) and the pilot's
+        surface variance, the medium's pass-to-pass variance (which wants two passes) left out: the rest's variance
+        read low, the share no lower than the optimum (the oracle share at the second pass saved 6-12 % at two
+        passes: docs/pbl.md, section 13)."""
+        if self.passes == 1 and self.pilot_surface is not None and self.diffuse:
+            b, p = self.diffuse[-1]
+            return diffuse_share(b, float(np.mean(self.pilot_surface / k)) + b / p, p)
         if self.passes < 2 or not self.diffuse:  # (from the third pass on: the variances want two passes)
             return 1.0
         s1, m = self.variances(image)
@@ -443,8 +451,10 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     samples_so_far = np.full(npix, first_sample, np.int64)  # each pixel's (its next path's sample index)
     passes = 0
     first_k = None  # the first two passes' counts (auto: from a pilot, or AUTO_FIRST_PATHS)
+    pilot_den = None  # the first pass's measure of the rays after a diffuse bounce (the pilot's image)
     if pbl.surface_paths == 0 and pbl.pilot_paths > 0 and entry is None and segment is None:
-        first_k = _pilot(bs, caster, pool, threads, seed, npix, W, pbl, settings, settings_b)
+        pilot = _pilot(bs, caster, pool, threads, seed, npix, W, pbl, settings, settings_b)
+        first_k, stats.pilot_surface, pilot_den = pilot.counts, pilot.surface_variance, pilot.image ** 2 + 1e-2
     for p in range(first_pass, first_pass + spp):
         if time_limit is not None and passes > 0 and time.perf_counter() - t0 > time_limit:
             break
@@ -461,7 +471,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         # a part of a render repeats its passes bit for bit, docs/distributed.md)
         share = stats.next_diffuse_share(image_so_far, k) if pbl.diffuse_shares and pbl.surface_paths == 0 else 1.0
         shares.append(share)
-        diffuse = DiffuseShare(share, image_so_far ** 2 + 1e-2 if image_so_far is not None else None)
+        diffuse = DiffuseShare(share, image_so_far ** 2 + 1e-2 if image_so_far is not None else pilot_den)
         media_data = media_for_pass(p)
         entry_p = entry.for_pass(p) if entry is not None else None
         segment_p = segment.for_pass(p, caster) if segment is not None else None
@@ -512,7 +522,12 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
                         "diffuse_shares": shares}
 
 
-def _pilot(bs, caster, pool, threads, seed: int, npix: int, width: int, pbl, settings, settings_b) -> np.ndarray:
+Pilot = namedtuple("Pilot", ["counts", "surface_variance", "image"])
+Pilot.__doc__ = """What the pilot measured: the first two passes' path counts (npix,), one surface path's variance per
+pixel relative to the pilot's image squared + 0.01 (npix,), and that image (npix, 3: the surfaces' light alone)."""
+
+
+def _pilot(bs, caster, pool, threads, seed: int, npix: int, width: int, pbl, settings, settings_b) -> Pilot:
     """The first passes' path counts (pilot_surface_paths) from pbl.pilot_paths surface-only camera paths per pixel,
     traced before them with sample indices and random streams of their own (from PILOT_FIRST_SAMPLE): the counts
     are independent of the paths they weigh, so the image stays unbiased; the pilot's light is not in the image."""
@@ -533,7 +548,8 @@ def _pilot(bs, caster, pool, threads, seed: int, npix: int, width: int, pbl, set
             total_sq[:, ch] += np.bincount(pixels[part], weights=light[:, ch] ** 2, minlength=npix)
     mean = total / per
     var = np.maximum(total_sq - total * mean, 0.0) / max(per - 1, 1)
-    return pilot_surface_paths((var / (mean ** 2 + 1e-2)).mean(axis=1), width)
+    relative = (var / (mean ** 2 + 1e-2)).mean(axis=1)
+    return Pilot(pilot_surface_paths(relative, width), relative, mean)
 
 
 def first_path_indices(surface_paths: int, first_pass: int, npix: int) -> tuple[int, int]:

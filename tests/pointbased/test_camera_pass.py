@@ -194,6 +194,29 @@ def test_diffuse_share_minimises_the_error_at_equal_time():
     assert diffuse_share(1e-6, 1e-2, 1.0) == DIFFUSE_SHARE_MIN < diffuse_share(1e-3, 4e-3, 1.0) == 1.0
 
 
+def test_the_second_pass_takes_its_diffuse_share_from_the_first_pass_and_the_pilot():
+    """With a pilot's surface variance, the second pass's share of the rays after a diffuse bounce is the
+    splitting optimum of the first pass's measured second moment b against the pilot's variance over the pass's
+    paths (the medium's pass-to-pass variance left out, so the share is no lower than with it); without a pilot, or
+    with nothing measured, it stays 1 until the third pass."""
+    npix, W = 40, 8
+    k = np.full(npix, 4)
+    for pilot in (None, np.full(npix, 0.8)):
+        st = PixelStatistics(npix, W)
+        st.pilot_surface = pilot
+        assert st.next_diffuse_share(None, k) == 1.0  # the first pass
+        level = np.ones((npix, 3))
+        st.add(k, 4 * level, 4 * level, level)
+        assert st.next_diffuse_share(level, k) == 1.0  # nothing measured after a diffuse bounce
+        share = DiffuseShare(1.0, level ** 2 + 1e-2)
+        share.add(np.arange(npix), k, np.full((npix, 3), 4 * 0.02))  # each ray's value / k = 0.02 in its pixel
+        st.add_diffuse(share, npix)
+        b = 0.02 ** 2 / 1.01
+        expected = 1.0 if pilot is None else diffuse_share(b, 0.8 / 4 + b, 1.0)
+        assert st.next_diffuse_share(level, k) == pytest.approx(expected)
+    assert expected < 0.5  # (b small against the surfaces' noise: most rays skip the smooth terms)
+
+
 def test_diffuse_share_measures_the_second_moment_of_what_the_rays_would_add_unweighted():
     """A ray kept at share p adds its value / p; p times that squared has the expectation of the value squared:
     the measure is per pixel relative (over the image so far squared + 0.01) and divides by the pixel's path
