@@ -19,6 +19,7 @@ import math
 import time
 from collections import namedtuple
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 
 import numpy as np
 from numba import njit, prange
@@ -32,7 +33,7 @@ from pbvol_cli.physics.lights import ENVIRONMENT, LIGHT_RGB, LIGHT_TYPE, emitted
 from pbvol_cli.physics.sampling import cosine_hemisphere, mix64, rand
 from pbvol_cli.pointbased.gather import (LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_SINGLE, DeferredSingle, eval_segments,
                                          gather_settings, segment_planes)
-from pbvol_cli.pointbased.radiance_cache import TermShares, cache_settings
+from pbvol_cli.pointbased.radiance_cache import DeferredBins, TermShares, cache_settings
 from pbvol_cli.pointbased.volume_samples import PLANE_COLS, medium_params, scattered_share
 from pbvol_cli.render.camera import camera_rays_for
 from pbvol_cli.render.interfaces import dielectric_fresnel, incident_side, indices, medium_beyond, shadow_ray_length
@@ -491,6 +492,8 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         surface_sq = np.zeros((npix, 3))
         per_pass = len(pixels)
         single = DeferredSingle()  # the lights' single scattering, evaluated for many batches at once
+        # the smooth terms' bins, evaluated for many batches and depths at once
+        bins = DeferredBins(np.random.default_rng([seed, p, 0xB125]), npix)
         term_shares = {} if pbl.term_shares else None  # how often the bins evaluate double and multiple scattering
         # (the segment term marches every path's segments with the batch's random numbers: its batches stay whole)
         surface_chunk = SURFACE_CHUNK if segment is None else chunk
@@ -498,9 +501,11 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
             part = slice(c0, c1)
             path_surface = _trace_batch(bs, caster, pool, threads, media_data, seed, done + c0, pixels[part],
                                         samples[part], evm[part], k[pixels[part]], npix, settings, settings_b, pbl,
-                                        acc, single, entry_p, segment_p, term_shares, diffuse)
+                                        acc, single, entry_p, segment_p, term_shares, diffuse, bins)
             if single.full() or part.stop == per_pass:
                 single.flush(pool, threads, acc["single"], npix)
+            if part.stop == per_pass:
+                bins.flush(pool, threads)
             for ch in range(3):
                 surface_sq[:, ch] += np.bincount(pixels[part], weights=path_surface[:, ch] ** 2, minlength=npix)
             if progress is not None:
@@ -669,14 +674,26 @@ def _shares(term_shares, m, kind: str):
     return None if term_shares is None else term_shares.setdefault((int(m), kind), TermShares())
 
 
+def _measure_shares(bins, pool, threads, state, idx):
+    """Flushes bins (radiance_cache.DeferredBins, or None) before segments idx are evaluated when some of them come
+    after a diffuse bounce (evaluated point by point with the term shares the bins measure) and the bins hold
+    terms whose shares are not measured yet."""
+    if bins is not None and bins.unmeasured() and bool(((state[idx] >> 2) > 0).any()):
+        bins.flush(pool, threads)
+
+
 def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samples, evm, kpaths, npix, settings,
-                 settings_b, pbl, layers, single, entry=None, segment=None, term_shares=None, dshare=None):
+                 settings_b, pbl, layers, single, entry=None, segment=None, term_shares=None, dshare=None, bins=None):
     """Camera paths (sample samples[i] of pixel pixels[i]; `done` paths traced before them in this render), traced to
     the end, added into layers; the lights' single scattering into single (gather.DeferredSingle), which the caller
     flushes into layers["single"]; term_shares: the pass's radiance_cache.TermShares by (medium, "lit" or
     "bounced"), filled as the bins are evaluated (None: every bin evaluates every term); dshare: the pass's
     DiffuseShare (the share of the rays after a diffuse bounce that evaluate the smooth terms, and their second
-    moment measured; None: all of them, not measured). Path i evaluates
+    moment measured; None: all of them, not measured); bins: the pass's radiance_cache.DeferredBins, which takes
+    the smooth terms of the segments not after a diffuse bounce (flushed here when it is full, or before segments
+    after a diffuse bounce take shares it has not measured yet; the caller flushes the rest; None: each depth's
+    bins evaluated at once). Path i
+    evaluates
     the medium where evm[i], its medium terms weighted kpaths[i] (its pixel's path count in this pass), and the
     entry term (render_pbl) where it enters a medium. Returns each path's surface light (n, 3)."""
     n = len(pixels)
@@ -729,17 +746,25 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                     for part, kmax in ((ev_s[diffuse], settings.kmax_diffuse), (ev_s[~diffuse], settings.kmax)):
                         single.add(int(m), lit.kernel, med, part, pos, dirs, beta_s, tev, rng, kmax, planes, pixel)
                 if settings.double or settings.multiple:
-                    eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, med, lit.kernel,
-                                  settings._replace(single=False), contrib, state >> 2, planes, cache, roulette_rng,
-                                  _shares(term_shares, m, "lit"), p_diffuse)
+                    s_lit, q_lit = settings._replace(single=False), _shares(term_shares, m, "lit")
+                    defer = None if bins is None else partial(
+                        bins.add, (int(m), "lit"), lit.kernel, med, s_lit, cache, q_lit,
+                        (None, layers["double"], layers["multiple"]), pixel=pixel)
+                    _measure_shares(bins, pool, threads, state, ev)
+                    eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, med, lit.kernel, s_lit, contrib,
+                                  state >> 2, planes, cache, roulette_rng, q_lit, p_diffuse, defer)
                 if bounced is not None and bounced.count:
                     qb = min(1.0, scattered_share(lit, bounced) / BOUNCED_ROULETTE)
                     evb = ev[roulette_rng.random(len(ev)) < qb]
                     beta_b = beta_ev / qb
                     cb3 = np.zeros((len(pos), 3, 3))
+                    q_b = _shares(term_shares, m, "bounced")
+                    defer = None if bins is None else partial(
+                        bins.add, (int(m), "bounced"), bounced.kernel, med, settings_b, cache_b, q_b,
+                        (layers["bounced"],) * 3, pixel=pixel)  # (its three terms make the bounced layer)
+                    _measure_shares(bins, pool, threads, state, evb)
                     eval_segments(pool, threads, evb, pos, dirs, beta_b, tev, rng, med, bounced.kernel, settings_b,
-                                  cb3, state >> 2, planes, cache_b, roulette_rng, _shares(term_shares, m, "bounced"),
-                                  p_diffuse)
+                                  cb3, state >> 2, planes, cache_b, roulette_rng, q_b, p_diffuse, defer)
                     contrib[evb, LAYER_BOUNCED] += cb3[evb, 0] + cb3[evb, 1] + cb3[evb, 2]  # (the rows it wrote)
             if entry is not None:
                 _add_entry_term(entry, int(m), sub[evm[sub] & (entered[sub] > 0)], pos, beta, kpaths, entered,
@@ -760,6 +785,8 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                 beta[sub] *= transmittance
             else:
                 _attenuate(beta, sub, tev, sum(bs.medium_sigmas(m)))
+        if bins is not None and bins.full():
+            bins.flush(pool, threads)
         if len(need) and dshare is not None:  # the smooth terms after a diffuse bounce, for the next shares
             after = need[(state >> 2)[need] > 0]
             dshare.add(pixel[after], kpaths[after], contrib[after, LAYER_DOUBLE:].sum(axis=1))

@@ -88,12 +88,15 @@ def _eval_segments(idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diff
 
 
 def eval_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes,
-                  cache: CacheSettings | None = None, bin_rng=None, term_shares=None, diffuse_share: float = 1.0):
+                  cache: CacheSettings | None = None, bin_rng=None, term_shares=None, diffuse_share: float = 1.0,
+                  deferred=None):
     """_segment for the rays idx: med (Medium), vs (VolumeSamples), settings (GatherSettings), out (n, 3, 3).
     With cache (CacheSettings, cell > 0) and bin_rng, the smooth terms of the rays that did not bounce off a diffuse
     surface are shared among the points of a bin (radiance_cache.shared_terms, with term_shares: a
     radiance_cache.TermShares, how often a bin evaluates each term) instead, and those of the rays after a diffuse
     bounce are evaluated on a share diffuse_share of them (camera_pass.DiffuseShare), weighted by its inverse.
+    deferred(idx, pos, dirs, beta, tseg, rng, planes), when given, takes those shared terms' segments instead, to
+    bin them with others (radiance_cache.DeferredBins.add); out then holds only the other terms.
 
     Numba's parallel loops reject the nested tuples (the octree, the tables): threads over slices instead, the
     kernel releasing the GIL. Rays are independent, so the result does not depend on the split."""
@@ -113,6 +116,9 @@ def eval_segments(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, setti
     if settings.single and not cache.single:
         single_along_segments(pool, threads, direct, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse,
                               planes)
+    if deferred is not None:
+        deferred(direct, pos, dirs, beta, tseg, rng, planes)
+        return
     shared_terms(pool, threads, direct, pos, dirs, beta, tseg, rng, med, vs, settings, cache, out, planes, bin_rng,
                  term_shares)
 

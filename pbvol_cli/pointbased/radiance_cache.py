@@ -281,6 +281,17 @@ def shared_terms(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settin
         return 0
     pts = scattered_points(idx, pos, dirs, beta, tseg, rng, med, settings.kmax_scattered, planes,
                            per_mfp=True)
+    contrib, n = binned_terms(pool, threads, pts, rng, med, vs, settings, cache, bin_rng, term_shares)
+    for layer in range(3):
+        for c in range(3):
+            out[:, layer, c] += np.bincount(pts.owner, weights=contrib[:, layer, c], minlength=len(out))
+    return n
+
+
+def binned_terms(pool, threads, pts: ScatteredPoints, rng, med, vs, settings, cache: CacheSettings, bin_rng,
+                 term_shares: TermShares | None = None):
+    """(contrib (m, 3 layers, 3), evaluations): each point's share of its bin's smooth terms (shared_terms's), the
+    representatives' random states rng[pts.owner]."""
     mfp = 1.0 / float(np.max(med.sigma_a + med.sigma_s))
     depth = pts.plane[:, 3] - np.einsum("ij,ij->i", pts.plane[:, :3], pts.pos)
     keys = bin_keys(pts.pos, pts.dir, depth, lateral_width(cache, mfp, vs), cache.cell * mfp, cache.directions,
@@ -313,7 +324,68 @@ def shared_terms(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settin
     contrib = values[group] * (pts.weight * scale[group])[:, None, :]
     if not do_single:
         contrib[:, 0] = 0.0
-    for layer in range(3):
-        for c in range(3):
-            out[:, layer, c] += np.bincount(pts.owner, weights=contrib[:, layer, c], minlength=len(out))
-    return len(reps)
+    return contrib, len(reps)
+
+
+DEFERRED_BIN_POINTS = 1 << 19  # smooth-term points a DeferredBins holds before it evaluates them (112 bytes each)
+
+
+class DeferredBins:
+    """The smooth terms' points of a pass's camera segments, drawn segment by segment as the paths go
+    (scattered_points, the segment's random state advanced then) and binned and evaluated together (flush): the
+    bins of one evaluation serve every batch and every path depth, where each batch and depth had bins of its own
+    (a 512 x 512 pass's four batches evaluated four times the bins of a 256 x 256 one). Each bin's total stays
+    unbiased (representatives); the representatives' light cuts take random states of their own, drawn from the
+    flush's generator."""
+
+    def __init__(self, bin_rng, npix: int):
+        self.bin_rng, self.npix = bin_rng, npix  # (numpy Generator: the bins' draws; the layers' pixels)
+        self.parts = {}  # key -> (VolumeSamples, Medium, settings, cache, TermShares, layers, [point arrays])
+        self.count = 0  # the points held
+
+    def unmeasured(self) -> bool:
+        """Whether a key held has TermShares not yet measured (the caller flushes it then: the segments after a
+        diffuse bounce, evaluated point by point, take the shares measured on the bins)."""
+        return any(part[4] is not None and not part[4].measured() for part in self.parts.values())
+
+    def full(self) -> bool:
+        """Whether it holds DEFERRED_BIN_POINTS points or more (the caller flushes it: memory stays bounded)."""
+        return self.count >= DEFERRED_BIN_POINTS
+
+    def add(self, key, vs, med, settings, cache: CacheSettings, term_shares, layers, idx, pos, dirs, beta, tseg, rng,
+            planes, pixel):
+        """The smooth terms' points of segments idx (shared_terms's) for pixels pixel[idx], under key (a medium and
+        sample set: the points of one key are binned together). layers: three (npix, 3) arrays (or None) taking
+        the single, double and multiple contributions."""
+        if len(idx) == 0:
+            return
+        pts = scattered_points(idx, pos, dirs, beta, tseg, rng, med, settings.kmax_scattered, planes, per_mfp=True)
+        part = self.parts.setdefault(key, (vs, med, settings, cache, term_shares, layers, []))
+        part[6].append((pts.pos, pts.dir, pts.weight, pts.plane, pixel[pts.owner]))
+        self.count += len(pts.owner)
+
+    def flush(self, pool, threads) -> int:
+        """Bins and evaluates the points held and adds their contributions into their layers, per pixel. Returns
+        the evaluations."""
+        bin_rng, npix = self.bin_rng, self.npix
+        parts, self.parts, self.count = self.parts, {}, 0
+        n = 0
+        for vs, med, settings, cache, term_shares, layers, chunks in parts.values():
+            pixel = np.concatenate([c[4] for c in chunks])
+            # by pixel (a pass traces one medium path a pixel: its points in the path's order), so that the order,
+            # and the draws that follow it, do not depend on how the pass's paths were cut in batches
+            order = np.argsort(pixel, kind="stable")
+            pos, wdir, weight, plane = (np.concatenate([c[k] for c in chunks])[order] for k in range(4))
+            pixel = pixel[order]
+            chunks.clear()
+            m = len(pixel)
+            pts = ScatteredPoints(pos, wdir, weight, plane, np.arange(m, dtype=np.int64))
+            rng = bin_rng.integers(0, 1 << 63, m, dtype=np.int64).view(np.uint64)  # a state per point
+            contrib, k = binned_terms(pool, threads, pts, rng, med, vs, settings, cache, bin_rng, term_shares)
+            n += k
+            for layer, target in enumerate(layers):
+                if target is None:
+                    continue
+                for c in range(3):
+                    target[:, c] += np.bincount(pixel, weights=contrib[:, layer, c], minlength=npix)
+        return n

@@ -363,6 +363,32 @@ def test_single_scattering_deferred_over_batches_is_the_same_flushed_often(tmp_p
     np.testing.assert_allclose(layers[1], layers[0], rtol=1e-6, atol=0.0)
 
 
+def test_smooth_terms_of_a_pass_are_binned_together_whatever_its_batches(tmp_path, monkeypatch):
+    """The smooth terms of a pass's camera segments are binned and evaluated together (radiance_cache.DeferredBins),
+    not batch by batch: with the medium's paths in batches of 50 the double, multiple and bounced layers are those
+    of one batch bit for bit (without roulette nothing else depends on the batches), and the pass evaluates the
+    bins once, however many batches and depths fed them."""
+    import pbvol_cli.pointbased.camera_pass as camera_pass
+    import pbvol_cli.pointbased.radiance_cache as radiance_cache
+
+    scene = medium_sphere_scene(surface_samples=800, segments_per_beam=4, surface_paths=1)
+    scene["shapes"][0].update(interface="dielectric", eta=1.5)
+    scene["render"]["pbl"].update(roulette=0.0, roulette_single=0.0, surface_roulette=0.0)
+    flushes = []
+    flush = radiance_cache.DeferredBins.flush
+    monkeypatch.setattr(radiance_cache.DeferredBins, "flush",
+                        lambda self, *a: (flushes.append(self.count), flush(self, *a))[1])
+    layers = []
+    for chunk in (camera_pass.CAMERA_CHUNK, 50):  # (144 pixels: three batches of 50)
+        monkeypatch.setattr(camera_pass, "CAMERA_CHUNK", chunk)
+        flushes.clear()
+        layers.append(read_layers(next(_seed_renders(tmp_path, scene, spp=1, seeds=[4]))))
+        assert len(flushes) == 1 and flushes[0] > 144, flushes  # one evaluation of every depth's points
+    for name in ("double", "multiple", "bounced"):
+        assert layers[0][name].sum() > 0, name
+        np.testing.assert_allclose(layers[1][name], layers[0][name], rtol=1e-6, atol=0.0, err_msg=name)
+
+
 def test_add_rows_sums_repeated_rows_in_order_as_numpy_add_at():
     rng = np.random.default_rng(5)
     index = rng.integers(0, 7, 200)
