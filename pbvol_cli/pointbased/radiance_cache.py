@@ -1,12 +1,13 @@
 """The smooth terms evaluated once per cell and direction bin and shared by the camera points in them.
 
 Double and multiple scattering (and the bounced light) vary over a mean free path and more, while a pass asks for
-them at tens of thousands of camera points a fraction of that apart. The points of one batch are binned by
+them at tens of thousands of camera points a fraction of that apart. The points of a pass (DeferredBins: all its
+camera batches and path depths together, where each batch and depth had bins of its own) are binned by
 position (cubes of `cell` mean free paths of the medium's densest channel) and by direction (a cube map of
 `directions` x `directions` bins per face); each occupied bin is evaluated once, at one of its points drawn in
 proportion to its weight, and that radiance serves every point of the bin, each with its own weight (path
 throughput, transmittance, pdf): the bin's total is unbiased. The grid is shifted and the cube map turned at random
-in every batch, so that over passes the bins' edges average out: the image converges to the terms blurred over
+in every evaluation, so that over passes the bins' edges average out: the image converges to the terms blurred over
 about a cell, not to a blocky one.
 
 Why this pays: a point's estimate of these terms is already noisy (the light cut is stochastic), and a pixel that
