@@ -134,6 +134,29 @@ def test_sample_by_sample_sums_equal_the_walk(monkeypatch, max_cells):
                                rtol=1e-12, atol=0.0)  # a grid of one point
 
 
+def test_each_sample_as_a_leg_gives_the_walks_sums():
+    """_splat_legs with every volume sample a leg of its own (its span the kernel cylinder's, axial_extent) against
+    the walk, at points spread over the samples and at points in one small clump, whose grid most legs reach only
+    beyond its ends (a column's range of cells then lies outside the grid, and must be skipped, not wrapped)."""
+    from pbvol_cli.pointbased.volume_samples import END_EXTENSION
+
+    rng = np.random.default_rng(8)
+    vs = random_volume_samples(rng, 3000)
+    ext = END_EXTENSION * vs.rb
+    span = np.column_stack([np.where(vs.ends & 1, -ext, 0.0), vs.len + np.where(vs.ends & 2, ext, 0.0)])
+    legs = vs._replace(leg_first=np.arange(len(vs.len), dtype=np.int64), leg_span=span)
+    med = Medium(np.array([0.2, 0.5, 1.0]), np.array([1.0, 0.8, 0.5]), 1, 0.7)
+    for pts in (rng.uniform(-2.5, 2.5, (1000, 3)), rng.normal(0.3, 0.05, (300, 3))):
+        w = rng.normal(size=(len(pts), 3))
+        w /= np.linalg.norm(w, axis=1)[:, None]
+        walk = np.zeros((len(pts), 3))
+        for j in range(len(pts)):
+            single_scattering(vs, med, Query(*pts[j], *w[j], NO_PLANE), walk[j])
+        assert (walk[:, 0] > 0).mean() > 0.5
+        np.testing.assert_allclose(single_scattering_by_samples(None, 1, legs, med, pts, w), walk, rtol=1e-12,
+                                   atol=0.0)
+
+
 def test_legs_give_the_segments_sums(tmp_path):
     """Light samples placed in a refracting sphere (legs of 6 segments through internal reflections): single
     scattering taken leg by leg (volume_samples.leg_table, _splat_legs) against segment by segment and against
