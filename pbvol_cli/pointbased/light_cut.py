@@ -27,6 +27,7 @@ from pbvol_cli.pointbased.sources import sample_terms
 
 CUT_CAP = 4096  # nodes a cut may hold at once (a node that would overflow it is used as it is)
 MULTIPLE_CUT_SHARE = 4  # multiple scattering (smooth) uses the cut after cut_size / 4 refinements
+LEAF_SCRATCH = 64  # a leaf's sample importances kept while its sample is drawn (leaves hold LEAF_SIZE, or a few more)
 
 
 @njit(inline="always", cache=True)
@@ -103,17 +104,16 @@ def _sample_importance(i, vs, q, kind, g, st_min, ext_min2):
 
 
 @njit(cache=True)
-def _representative(nd, vs, q, kind, g, st_min, ext_min2, u):
+def _representative(nd, vs, q, kind, g, st_min, ext_min2, u, imp, pws):
     """A sample of node nd drawn by descending with probabilities half proportional to each child's _importance
     and half to its power, then likewise among the leaf's samples (a light tree, after Conty Estevez and Kulla
     2018, with a defensive mixture): sources whose lobes point at P and whose P-side phase points at the camera
     are found far more often than by power alone (g = 0.9: lobes 200x their mean), and no sample's weight exceeds
-    twice its power-proportional one (importance alone, misjudged near P, made fireflies). Returns (sample,
+    twice its power-proportional one (importance alone, misjudged near P, made fireflies). imp, pws: scratch of
+    LEAF_SCRATCH and 8 (a leaf's importances kept there between its two loops, where it fits). Returns (sample,
     1 / its probability)."""
     tree, v_scat, lobes = vs.tree, vs.scat, vs.lobes
     order, first_child, n_children, start, end = tree[0], tree[6], tree[7], tree[8], tree[9]
-    imp = np.empty(8)
-    pws = np.empty(8)
     prob = 1.0
     while first_child[nd] >= 0:
         f0, nc = first_child[nd], n_children[nd]
@@ -151,10 +151,14 @@ def _representative(nd, vs, q, kind, g, st_min, ext_min2, u):
         nd = f0 + pick
     total = 0.0
     ptotal = 0.0
+    kept = end[nd] - start[nd] <= imp.shape[0]  # (a leaf beyond the octree's capacity may be larger)
     for k in range(start[nd], end[nd]):
         i = order[k]
         ptotal += v_scat[i, 0] + v_scat[i, 1] + v_scat[i, 2]
-        total += _sample_importance(i, vs, q, kind, g, st_min, ext_min2)
+        si = _sample_importance(i, vs, q, kind, g, st_min, ext_min2)
+        if kept:
+            imp[k - start[nd]] = si
+        total += si
     if not ptotal > 0.0:
         return -1, 0.0
     acc = 0.0
@@ -165,7 +169,8 @@ def _representative(nd, vs, q, kind, g, st_min, ext_min2, u):
         pw = v_scat[i, 0] + v_scat[i, 1] + v_scat[i, 2]
         w = 0.5 * pw / ptotal
         if total > 0.0:
-            w += 0.5 * _sample_importance(i, vs, q, kind, g, st_min, ext_min2) / total
+            si = imp[k - start[nd]] if kept else _sample_importance(i, vs, q, kind, g, st_min, ext_min2)
+            w += 0.5 * si / total
         else:
             w += 0.5 * pw / ptotal
         if w > 0.0:
@@ -189,12 +194,14 @@ def _cut_estimate(heap, hn, node_of, vs, med, q, rclamp, do_double, do_multiple,
     st_min = min(sig_a[0] + sig_s[0], min(sig_a[1] + sig_s[1], sig_a[2] + sig_s[2]))
     od = np.zeros(3)
     om = np.zeros(3)
+    imp, pws = np.empty(LEAF_SCRATCH), np.empty(8)  # _representative's scratch
     n = 0
     for h in range(hn):
         nd = node_of[heap[h]]
         if power[nd, 0] + power[nd, 1] + power[nd, 2] <= 0.0:
             continue
-        i, scale = _representative(nd, vs, q, med.phase, med.g, st_min, 0.25 * split * split, rand(rng, ri))
+        i, scale = _representative(nd, vs, q, med.phase, med.g, st_min, 0.25 * split * split, rand(rng, ri), imp,
+                                   pws)
         if i < 0:
             continue
         for c in range(3):
