@@ -3,7 +3,7 @@
 
     .venv/bin/python benchmarks/pbl_speed.py [--scenes oil_sphere,wax_sphere,wine_glass] [--resolution 256]
         [--pbl-spp 1,2,4,8] [--volpath-spp 16,64,256,1024] [--ref-spp 16384] [--target 1e-3] [--memory-check]
-        [--out bench-out] [--threads 2] [--cache DIR] [--pass-only]
+        [--out bench-out] [--threads 2] [--cache DIR] [--pass-only [--repeat 3]]
         [--mitsuba PYTHON --mitsuba-spp 64,256,1024 --mitsuba-integrators volpath,volpathmis] [--reuse-curves JSON]
         [--set k=v ...]
 
@@ -18,7 +18,8 @@ timed; peak memory is per process):
   4. with --memory-check, pbl's peak memory at 512 x 512, 1 spp;
   5. with --reuse-curves, the volpath and Mitsuba curves of an earlier run's pbl_speed.json instead (they do not
      depend on pbl's code; the reference must be the same, as it is from the cache);
-  6. with --pass-only, step 2 alone (no reference): <out>/pass_cost.md;
+  6. with --pass-only, step 2 alone (no reference), --repeat rounds of it, their medians:
+     <out>/pass_cost.md;
   6a. with --set k=v, pbl renders the scene with that [render.pbl] setting (a copy in <out>/scenes/);
   6b. pbl's time at each of its renders over the time volpath takes to the same error (a second table), and pbl's
      relMSE over 8 x 8 blocks at its longest render (an upper estimate of its bias: noise falls 64-fold there);
@@ -35,6 +36,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import statistics
 import sys
 from pathlib import Path
 
@@ -82,6 +84,7 @@ def main():
     ap.add_argument("--mitsuba-spp", default="64,256,1024")
     ap.add_argument("--mitsuba-integrators", default="volpath,volpathmis")
     ap.add_argument("--mitsuba-variant", default="llvm_ad_rgb")
+    ap.add_argument("--repeat", type=int, default=3, help="with --pass-only: rounds of the two renders (medians)")
     ap.add_argument("--pass-only", action="store_true", help="only the pass cost: pbl at 1 pass against volpath at "
                     "16 spp for each scene, no reference (writes <out>/pass_cost.md)")
     ap.add_argument("--reuse-curves", type=Path, help="an earlier run's pbl_speed.json: its volpath and Mitsuba "
@@ -173,14 +176,19 @@ def equal_error_table(rows: list[dict]) -> str:
 
 
 def pass_cost(args, res: str):
-    """Step 2 alone, for every scene of args.scenes: writes <out>/pass_cost.md."""
-    lines = ["| scene | pass s | volpath 16 spp s | pass / volpath 16 |", "|---|---|---|---|"]
+    """Step 2 alone, for every scene of args.scenes, args.repeat rounds of the two renders one after the other (a
+    16-spp volpath render's time moves by a quarter from run to run): the medians, their ratio and the rounds'
+    ratios. Writes <out>/pass_cost.md."""
+    lines = ["| scene | pass s (median) | volpath 16 spp s (median) | pass / volpath 16 | rounds' ratios |",
+             "|---|---|---|---|---|"]
     for name in args.scenes.split(","):
         scene = ROOT / "configs" / f"{name}.toml"
         scenes = {"pbl": with_pbl(scene, args.out / "scenes", args.pbl), "volpath": scene}
-        t = {m: render(scenes[m], m, spp, 1, res, args.threads, args.cache, args.out / f"{name}_{m}.exr")[0]["time_s"]
-             for m, spp in (("pbl", 1), ("volpath", 16))}
-        lines.append(f"| {name} | {t['pbl']:.2f} | {t['volpath']:.2f} | {t['pbl'] / t['volpath']:.1f}× |")
+        rounds = [{m: render(scenes[m], m, spp, 1, res, args.threads, args.cache, args.out / f"{name}_{m}.exr")[0][
+            "time_s"] for m, spp in (("pbl", 1), ("volpath", 16))} for _ in range(args.repeat)]
+        t = {m: statistics.median(r[m] for r in rounds) for m in ("pbl", "volpath")}
+        ratios = ", ".join(f"{r['pbl'] / r['volpath']:.1f}" for r in rounds)
+        lines.append(f"| {name} | {t['pbl']:.2f} | {t['volpath']:.2f} | {t['pbl'] / t['volpath']:.1f}× | {ratios} |")
         print(lines[-1], flush=True)
     (args.out / "pass_cost.md").write_text("\n".join(lines) + "\n")
 

@@ -541,16 +541,16 @@ def _pilot(bs, caster, pool, threads, seed: int, npix: int, width: int, pbl, set
     ranks = np.repeat(np.arange(per, dtype=np.int64)[None, :], npix, axis=0).ravel()
     pixels = np.repeat(np.arange(npix, dtype=np.int64), per)
     kpaths = np.full(npix, per, np.int64)
+    # the layers the paths add into, never read (the pilot's light is each path's): one set for all batches
+    layers = {name: np.zeros((npix, 3)) for name in (*COMPONENTS, "surface")}
     for c0 in range(0, len(pixels), SURFACE_CHUNK):
         part = slice(c0, c0 + SURFACE_CHUNK)
         n = len(pixels[part])
-        layers = {name: np.zeros((npix, 3)) for name in (*COMPONENTS, "surface")}
         light = _trace_batch(bs, caster, pool, threads, {}, seed, PILOT_FIRST_SAMPLE + c0, pixels[part],
                              PILOT_FIRST_SAMPLE + ranks[part], np.zeros(n, np.bool_), kpaths[pixels[part]], npix,
                              settings, settings_b, pbl, layers, DeferredSingle())
-        for ch in range(3):
-            total[:, ch] += np.bincount(pixels[part], weights=light[:, ch], minlength=npix)
-            total_sq[:, ch] += np.bincount(pixels[part], weights=light[:, ch] ** 2, minlength=npix)
+        add_rows(total, pixels[part], light)  # (np.bincount's sums where a pixel's paths lie in one batch)
+        add_rows(total_sq, pixels[part], light * light)
     mean = total / per
     var = np.maximum(total_sq - total * mean, 0.0) / max(per - 1, 1)
     relative = (var / (mean ** 2 + 1e-2)).mean(axis=1)
