@@ -113,7 +113,11 @@ def depth_of_fraction(u, s):
 @njit(inline="always", cache=True)
 def stratified_depth(k, n, xi, s, dmax, frac):
     """Point k of n stratified along a segment of length dmax in a medium whose smallest extinction is s (s = 0:
-    uniform): u = (k + xi) / n of the extinguished share frac = 1 - e^(-s dmax). Returns (depth, its pdf)."""
+    uniform): u = (k + xi) / n of the extinguished share frac = 1 - e^(-s dmax). Returns (depth, its pdf); a
+    segment of no length (a ray meeting a surface where it starts: Embree can return t = 0) gives depth 0 with an
+    infinite pdf, so that its points weigh nothing, where a division by zero stopped the render."""
+    if not (dmax > 0.0 and frac > 0.0):
+        return 0.0, np.inf
     u = (k + xi) / n * frac
     if s > 0.0:
         d = depth_of_fraction(u, s)

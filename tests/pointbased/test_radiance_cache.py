@@ -269,3 +269,21 @@ def test_term_shares_keep_every_smooth_layers_mean_in_a_render(tmp_path, monkeyp
         se = math.hypot(ma.std(ddof=1), mb.std(ddof=1)) / math.sqrt(len(ma))
         print(name, ma.mean(), mb.mean(), se)
         assert ma.mean() > 0 and abs(ma.mean() - mb.mean()) < 4 * se, (name, ma.mean(), mb.mean(), se)
+
+
+def test_points_of_a_segment_of_no_length_weigh_nothing():
+    """scattered_points of a segment of no length (a ray meeting a surface where it starts) beside one of length 2:
+    the first's points weigh zero, the second's as they do alone."""
+    from pbvol_cli.pointbased.gather import segment_planes
+    from pbvol_cli.pointbased.radiance_cache import scattered_points
+    from pbvol_cli.pointbased.volume_samples import Medium
+
+    med = Medium(np.array([0.5, 0.5, 0.5]), np.array([1.0, 1.1, 1.2]), 1, 0.0)
+    pos, dirs = np.zeros((2, 3)), np.tile([0.0, 0.0, 1.0], (2, 1))
+    beta, tseg = np.ones((2, 3)), np.array([0.0, 2.0])
+    planes = segment_planes(pos, dirs, tseg, np.full((2, 3), np.nan), np.full((2, 3), np.nan))
+    both = scattered_points(np.arange(2), pos, dirs, beta, tseg, np.array([1, 2], np.uint64), med, 3, planes)
+    alone = scattered_points(np.array([1]), pos, dirs, beta, tseg, np.array([1, 2], np.uint64), med, 3, planes)
+    assert np.all(both.weight[both.owner == 0] == 0.0)
+    np.testing.assert_array_equal(both.weight[both.owner == 1], alone.weight)
+    assert np.all(alone.weight > 0)
