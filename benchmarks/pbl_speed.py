@@ -47,14 +47,15 @@ from pbl_bench import (RENDER, ROOT, _run, block_rel_mse, pbl_overrides, rel_mse
 
 def time_to(points: list[tuple[float, float]], target: float, extrapolate: bool) -> float | None:
     """Seconds to reach relMSE `target` from (seconds, relMSE) points, by log-log interpolation; beyond the last
-    point, relMSE ~ 1 / time where extrapolate (an unbiased method), else None."""
+    point, and before the first, relMSE ~ 1 / time where extrapolate (an unbiased method), else None (before the
+    first: its time)."""
     pts = sorted(p for p in points if p[1] > 0)
     for (t0, e0), (t1, e1) in zip(pts, pts[1:]):
         if e0 >= target >= e1:
             a = math.log(e0 / target) / math.log(e0 / e1) if e0 != e1 else 0.0
             return math.exp(math.log(t0) + a * math.log(t1 / t0))
-    if pts and pts[0][1] <= target:
-        return pts[0][0]
+    if pts and pts[0][1] <= target:  # (already below at its first point: an unbiased method got there sooner)
+        return pts[0][0] * pts[0][1] / target if extrapolate else pts[0][0]
     if extrapolate and pts:
         t, e = pts[-1]
         return t * e / target
