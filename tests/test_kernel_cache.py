@@ -33,9 +33,9 @@ def test_kernels_take_the_package_stamp():
     file of the package."""
     from pbvol_cli import kernel_cache
     from pbvol_cli.physics.sampling import stratified_depth
-    from pbvol_cli.pointbased.gather import _segment
+    from pbvol_cli.pointbased.camera_pass import add_rows
 
-    for kernel in (_segment, stratified_depth):
+    for kernel in (add_rows, stratified_depth):
         stamp = kernel._cache._cache_file._source_stamp
         assert getattr(kernel._cache._impl.locator, "pbvol_package_stamp", False)
         assert stamp[1] == kernel_cache.package_stamp()
