@@ -108,8 +108,10 @@ def _representative(nd, vs, q, kind, g, st_min, ext_min2, u, imp, pws):
     """A sample of node nd drawn by descending with probabilities half proportional to each child's _importance
     and half to its power, then likewise among the leaf's samples (a light tree, after Conty Estevez and Kulla
     2018, with a defensive mixture): sources whose lobes point at P and whose P-side phase points at the camera
-    are found far more often than by power alone (g = 0.9: lobes 200x their mean), and no sample's weight exceeds
-    twice its power-proportional one (importance alone, misjudged near P, made fireflies). imp, pws: scratch of
+    are found far more often than by power alone (g = 0.9: lobes 200x their mean), and at each level no child's
+    probability falls below half its power share (importance alone, misjudged near P, made fireflies; over the
+    levels that bounds a sample's weight by 2^levels times its power-proportional one. A one-sample mixture of
+    the two whole descents, bounding it by twice, was measured and not kept: docs/pbl.md). imp, pws: scratch of
     LEAF_SCRATCH and 8 (a leaf's importances kept there between its two loops, where it fits). Returns (sample,
     1 / its probability)."""
     tree, v_scat, lobes = vs.tree, vs.scat, vs.lobes
