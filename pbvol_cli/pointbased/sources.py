@@ -99,10 +99,22 @@ def source_terms(src, plane, med, q, rclamp, do_double, do_multiple, tabs, split
         dp = 2.0 * (dx * ax + dy * ay + dz * az)
         fx, fy, fz = dx - dp * ax, dy - dp * ay, dz - dp * az
         wp = 0.5 * (1.0 - (nx * ax + ny * ay + nz * az)) if image else 1.0
+        # the table read no nearer the source than its extent, as double scattering's ball: a sample stands for
+        # light spread over its kernel, and its table value a hundredth of a mean free path away was a rare spike
+        # of hundreds of times the mean (the milk's tails, docs/pbl.md)
+        cm = max(rclamp, src.extent)
+        if qn < np.inf:
+            cm = max(rclamp, min(src.extent, max(qn - (nx * x + ny * y + nz * z), 0.5 * src.extent)))
+        sx, sy, sz = rx, ry, rz
+        if r < cm:
+            if r > 0.0:
+                sx, sy, sz = rx * (cm / r), ry * (cm / r), rz * (cm / r)
+            else:
+                sx, sy, sz = cm * dx, cm * dy, cm * dz  # (at the source itself: ahead along its beam)
         for c in range(3):
             Pc = src.pr if c == 0 else (src.pg if c == 1 else src.pb)
             st = sig_a[c] + sig_s[c]
-            v0 = scaled_lookup(tabs[c], Pc, st, rx, ry, rz, dx, dy, dz, wx, wy, wz)
+            v0 = scaled_lookup(tabs[c], Pc, st, sx, sy, sz, dx, dy, dz, wx, wy, wz)
             if v0 <= 0.0:
                 continue
             v = v0

@@ -115,3 +115,24 @@ def test_multiple_term_mirrors_the_source_in_the_camera_points_plane_too():
     assert 0 < expect < 0.9 * (v - v_top)
     assert multiple(x, p_far, bottom) == pytest.approx(expect, rel=1e-9)
     assert multiple(x, p_far, NO_PLANE) == pytest.approx(v - v_top, rel=1e-9)
+
+
+def test_multiple_term_reads_the_table_no_nearer_than_the_sources_extent():
+    """A source stands for light spread over its extent: the multiple term of a point 0.01 from a source of extent
+    0.13 reads the table 0.13 away in the same direction (as double scattering's ball; the table a hundredth of a
+    mean free path from its source spiked to hundreds of times the mean on the milk), and a point beyond the extent
+    reads it where it lies."""
+    lay = Layout(extent=10.0, n_rho=16, n_z=32, n_theta=9, n_phi=9, kill_radius=20.0)
+    table, _ = build_table(0.9, 0.7, 1, TableSettings(particles=40000, layout=lay, sh_order=8))
+    tab = table.render_args()
+    med = Medium(np.full(3, 0.1), np.full(3, 0.9), 1, 0.7)  # sigma_t 1
+    d, w = np.array([0.0, 0.6, 0.8]), np.array([0.6, 0.0, 0.8])
+    u = np.array([2.0, -1.0, 2.0]) / 3.0
+    no_plane = np.array([0.0, 0.0, 1.0, np.inf] * 2)
+    for dist, read in ((0.01, 0.13), (0.2, 0.2), (0.0, None)):
+        out_m = np.zeros(3)
+        source_terms(Source(0.0, 0.0, 0.0, *d, 1.0, 1.0, 1.0, 0.13), no_plane, med, Query(*(dist * u), *w, NO_PLANE),
+                     0.02, False, True, (tab,) * 3, 0.0, np.zeros(3), out_m)
+        r = read * u if read is not None else 0.13 * d  # (at the source itself: its extent ahead along its beam)
+        expected = scaled_lookup(tab, 1.0, 1.0, *r, *d, *w)
+        assert expected > 0 and np.all(out_m == pytest.approx(expected, rel=1e-12)), (dist, out_m, expected)
