@@ -96,11 +96,32 @@ def _importance(x, y, z, dx, dy, dz, align, power, ext2, q, kind, g, st_min):
 
 @njit(inline="always", cache=True)
 def _sample_importance(i, vs, q, kind, g, st_min, ext_min2):
-    """_importance of volume sample i (its own direction, fully aligned; extent at least its beam's radius and
-    half its length, and ext_min)."""
+    """_importance of volume sample i as a line source: its power spread along its segment, 1/r^2 averaged along
+    it (r at least its beam's radius and ext_min), the lobe (its own direction), the phase toward the camera and
+    the transmittance taken at its point nearest P. Judged at its centre with an extent of half its length (as
+    before) a long segment read about ten times low where P lies near one end: on the milk a bounced segment 6
+    long (8 mean free paths), drawn at 1 in 1573 for 3 % of the estimate, made a bin read 50x (docs/pbl.md)."""
     pw = vs.scat[i, 0] + vs.scat[i, 1] + vs.scat[i, 2]
-    return _importance(vs.centre[i, 0], vs.centre[i, 1], vs.centre[i, 2], vs.dir[i, 0], vs.dir[i, 1], vs.dir[i, 2],
-                       1.0, pw, max(vs.rb[i] ** 2, 0.25 * vs.len[i] ** 2, ext_min2), q, kind, g, st_min)
+    ln = vs.len[i]
+    dx, dy, dz = vs.dir[i, 0], vs.dir[i, 1], vs.dir[i, 2]
+    px, py, pz = q.x - vs.start[i, 0], q.y - vs.start[i, 1], q.z - vs.start[i, 2]
+    tp = px * dx + py * dy + pz * dz  # P's offset along the segment's line from its start
+    ex, ey, ez = px - tp * dx, py - tp * dy, pz - tp * dz
+    r2 = max(ex * ex + ey * ey + ez * ez, vs.rb[i] ** 2, ext_min2)
+    r0 = math.sqrt(r2)
+    if ln > 1e-9 * r0:  # the mean over the segment of 1 / (r0^2 + (l - tp)^2)
+        line = (math.atan((ln - tp) / r0) + math.atan(tp / r0)) / (r0 * ln)
+    else:
+        line = 1.0 / (r2 + tp * tp)
+    tc = min(max(tp, 0.0), ln)
+    cx, cy, cz = px - tc * dx, py - tc * dy, pz - tc * dz  # from the segment's nearest point to P
+    rc = math.sqrt(cx * cx + cy * cy + cz * cz)
+    if rc > 0.0:
+        mx, my, mz = cx / rc, cy / rc, cz / rc
+    else:
+        mx, my, mz = q.wx, q.wy, q.wz
+    lobe = phase_eval(kind, g, dx * mx + dy * my + dz * mz)
+    return pw * lobe * phase_eval(kind, g, mx * q.wx + my * q.wy + mz * q.wz) * math.exp(-st_min * rc) * line
 
 
 @njit(cache=True)

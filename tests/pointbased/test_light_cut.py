@@ -92,3 +92,41 @@ def test_multiple_scattering_cut_is_unbiased_with_sources_around_the_point():
     mean, se = runs.mean(0), runs.std(0) / np.sqrt(len(runs))
     assert np.all(runs.std(0) > 0)  # the cut is stochastic
     assert np.all(np.abs(mean - exact) < 4 * se), (mean, exact, se)
+
+
+def test_a_long_segment_near_the_point_is_drawn_as_often_as_it_weighs():
+    """A segment 6 long (a dense medium's bounced beam) passing 0.2 from P among 300 short ones 2-4 away, each of
+    the same power: the cut's representatives judge a segment by its whole length (1/r^2 averaged along it), so
+    the long one, a few per cent of double scattering there, is drawn about as often as it weighs. Judged at its
+    centre with an extent of half its length it was drawn far too rarely: the estimate's relative spread over
+    3000 cuts read 1.94, 0.91 now. Unbiased either way (4 standard errors from the cut refined to every leaf)."""
+    rng = np.random.default_rng(9)
+    n = 301
+    P = np.array([0.0, 0.0, 0.0])
+    w = np.array([0.0, 0.6, 0.8])
+    u = rng.normal(size=(n, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    centre = u * rng.uniform(2.0, 4.0, n)[:, None]
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    length, rb = np.full(n, 0.05), np.full(n, 0.05)
+    d[0], length[0] = np.array([1.0, 0.0, 0.0]), 6.0  # the long one: from (-1, 0.2, 0) to (5, 0.2, 0)
+    centre[0] = np.array([2.0, 0.2, 0.0])
+    start = centre - 0.5 * length[:, None] * d
+    scat = np.full((n, 3), 0.5)
+    no_plane = np.tile([0.0, 0.0, 1.0, np.inf] * 2, (n, 1))
+    end = start + length[:, None] * d
+    lo, hi = np.minimum(start, end) - rb[:, None], np.maximum(start, end) + rb[:, None]
+    tree = build_octree(centre, lo, hi, d, scat).arrays()
+    vs = VolumeSamples(tree, start, d, length, scat, np.pi * rb ** 2, centre, scat, rb, np.zeros(n, np.int64), no_plane,
+                       (empty_table().render_args(),) * 3, 0.0, node_lobes(tree))
+    med, q = Medium(SIG_A, SIG_S, 1, G), Query(*P, *w, NO_PLANE)
+    state = np.array([3], np.uint64)
+    exact = np.zeros(3)  # the cut refined to every leaf: every sample's terms
+    double_multiple(vs, med, q, len(tree[1]), 0.02, True, False, exact, np.zeros(3), state, 0)
+    runs = np.zeros((3000, 3))
+    for k in range(len(runs)):
+        double_multiple(vs, med, q, 4, 0.02, True, False, runs[k], np.zeros(3), state, 0)
+    spread = runs.mean(1).std() / runs.mean(1).mean()
+    assert spread < 1.5, spread
+    assert np.all(np.abs(runs.mean(0) - exact) < 4 * runs.std(0) / np.sqrt(len(runs)))
