@@ -16,10 +16,10 @@ from numba import njit
 LEAF_SIZE = 8
 LEAF_WALK_STACK = 128  # depth-first stack of next_leaf's walks (8 children a level: ample)
 # a node's row of node_lobes: its power-weighted centroid, mean direction (unit), alignment (|dirsum| / power, at most
-# 1), power (R + G + B) and squared half-diagonal of the box around its samples (their own extent: the segment and
-# its beam's radius, not single scattering's wider kernel boxes); what a light-cut descent reads of each child, in one
-# record (the arrays of Octree, read child by child, were one cache miss each)
-LOBE_CENTRE, LOBE_DIR, LOBE_ALIGN, LOBE_POWER, LOBE_EXT2, LOBE_COLS = 0, 3, 6, 7, 8, 9
+# 1), power (R + G + B), and the box around its samples (their own extent: the segment and its beam's radius, not
+# single scattering's wider kernel boxes) as its squared half-diagonal and its corners; what a light-cut descent reads
+# of each child, in one record (the arrays of Octree, read child by child, were one cache miss each)
+LOBE_CENTRE, LOBE_DIR, LOBE_ALIGN, LOBE_POWER, LOBE_EXT2, LOBE_LO, LOBE_HI, LOBE_COLS = 0, 3, 6, 7, 8, 9, 12, 15
 
 
 @dataclass
@@ -190,8 +190,8 @@ def next_leaf(tree, stack, sp, px, py, pz, margin):
 
 @njit(cache=True)
 def _node_extents(tree, box_lo, box_hi):
-    """(nodes,) each node's squared half-diagonal of the box around its samples' boxes [box_lo, box_hi] (in the
-    tree's sample order: sample order[k] at box_lo[order[k]]); children after parents, so filled leaves first."""
+    """Each node's box around its samples' boxes [box_lo, box_hi] (sample order[k] at box_lo[order[k]]), as
+    (squared half-diagonal (nodes,), lo (nodes, 3), hi (nodes, 3)); children come after parents: leaves first."""
     order, first_child, n_children, start, end = tree[0], tree[6], tree[7], tree[8], tree[9]
     n = first_child.shape[0]
     lo, hi = np.full((n, 3), np.inf), np.full((n, 3), -np.inf)
@@ -211,11 +211,11 @@ def _node_extents(tree, box_lo, box_hi):
         if end[nd] > start[nd]:
             hx, hy, hz = hi[nd, 0] - lo[nd, 0], hi[nd, 1] - lo[nd, 1], hi[nd, 2] - lo[nd, 2]
             ext2[nd] = 0.25 * (hx * hx + hy * hy + hz * hz)
-    return ext2
+    return ext2, lo, hi
 
 
 @njit(cache=True)
-def _node_lobes(tree, ext2):
+def _node_lobes(tree, ext2, blo, bhi):
     centre, dirsum, power = tree[3], tree[4], tree[5]
     n = centre.shape[0]
     out = np.zeros((n, LOBE_COLS))
@@ -225,6 +225,9 @@ def _node_lobes(tree, ext2):
         for c in range(3):
             out[nd, LOBE_CENTRE + c] = centre[nd, c]
         out[nd, LOBE_EXT2] = ext2[nd]
+        for c in range(3):
+            out[nd, LOBE_LO + c] = blo[nd, c]
+            out[nd, LOBE_HI + c] = bhi[nd, c]
         sx, sy, sz = dirsum[nd, 0], dirsum[nd, 1], dirsum[nd, 2]
         sn = math.sqrt(sx * sx + sy * sy + sz * sz)
         if pw > 0.0 and sn > 0.0:
@@ -236,12 +239,14 @@ def _node_lobes(tree, ext2):
 
 
 def node_lobes(tree, box_lo=None, box_hi=None) -> np.ndarray:
-    """(nodes, LOBE_COLS): each node's lobe record (see LOBE_COLS) from tree (Octree.arrays()). The extent is that
-    of the samples' own boxes [box_lo, box_hi] (indexed like the tree's samples) where given, else of the tree's
-    boxes. A node without power gets a zero direction and alignment."""
+    """(nodes, LOBE_COLS): each node's lobe record (see LOBE_COLS) from tree (Octree.arrays()). The box is that
+    around the samples' own boxes [box_lo, box_hi] (indexed like the tree's samples) where given, else the tree's.
+    A node without power gets a zero direction and alignment."""
     if box_lo is None:
         lo, hi = tree[1], tree[2]
         ext2 = 0.25 * np.sum((hi - lo) ** 2, axis=1) if len(lo) else np.zeros(0)
     else:
-        ext2 = _node_extents(tree, np.ascontiguousarray(box_lo, np.float64), np.ascontiguousarray(box_hi, np.float64))
-    return _node_lobes(tree, np.ascontiguousarray(ext2, np.float64))
+        ext2, lo, hi = _node_extents(tree, np.ascontiguousarray(box_lo, np.float64),
+                                     np.ascontiguousarray(box_hi, np.float64))
+    return _node_lobes(tree, np.ascontiguousarray(ext2, np.float64), np.ascontiguousarray(lo, np.float64),
+                       np.ascontiguousarray(hi, np.float64))

@@ -233,7 +233,7 @@ class SampleSet:
         tree = aggregate_octree(skeleton, centre, box_lo, box_hi, dirs, self.scat)
         self.count = len(idx)
         r_near = near_field_radius(start, dirs, length, beam_radius, (lo, hi), float(np.max(st)))
-        # the light cut judges a node by its samples' own extent (segment and beam radius): the kernel boxes, up to
+        # the light cut judges a node by its samples' own box (segment and beam radius): the kernel boxes, up to
         # 3 x BOUNCED_KERNEL beam radii wider, floored the importance of nodes near P hundreds of times low (a
         # one-sample leaf of the milk's bounced set 3.6 in half-diagonal for a segment 0.4 wide; docs/pbl.md)
         end = start + length[:, None] * dirs
