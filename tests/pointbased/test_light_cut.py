@@ -136,44 +136,62 @@ def test_a_long_segment_near_the_point_is_drawn_as_often_as_it_weighs():
 
 
 
+
+def _cloud(rng, n, r_lo, r_hi):
+    """n source centres at random directions r_lo-r_hi from the origin, and random unit directions."""
+    u = rng.normal(size=(n, 3))
+    centre = u / np.linalg.norm(u, axis=1, keepdims=True) * rng.uniform(r_lo, r_hi, n)[:, None]
+    d = rng.normal(size=(n, 3))
+    return centre, d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def _sample_set(centre, d, length, radius, sigma_a, sigma_s, g, tables, beam_width):
+    """A SampleSet's kernel and Medium for segments centred at centre (unit power, beam radius `radius`, no
+    boundary) in a Henyey-Greenstein medium."""
+    n = len(centre)
+    samples = SimpleNamespace(v_start=centre - 0.5 * length[:, None] * d, v_dir=d, v_len=length,
+                              v_power=np.ones((n, 3)), v_area=np.pi * radius ** 2, v_medium=np.zeros(n, np.int64),
+                              v_ends=np.zeros(n, np.int64), v_plane=np.tile([0.0, 0.0, 1.0, np.inf] * 2, (n, 1)))
+    media = np.zeros((1, MED_COLS))
+    media[0, MED_SIGMA_A:MED_SIGMA_A + 3], media[0, MED_SIGMA_S:MED_SIGMA_S + 3] = sigma_a, sigma_s
+    media[0, MED_PHASE], media[0, MED_G] = 1, g
+    return SampleSet(samples, 0, media, tables, beam_width=beam_width).kernel, medium_params(media, 0)
+
+
+def _cut_spreads(vs, med, q, lobe_variants, runs, do_double):
+    """The relative spread of `runs` small cuts (double scattering, else multiple) with each of lobe_variants as
+    the tree's lobes; the first variant's mean must be the cut refined to every leaf's (4 standard errors)."""
+    state = np.array([5], np.uint64)
+    exact = np.zeros((2, 3))  # (the multiple term's cut is a quarter of the double's: refined 4x as far)
+    double_multiple(vs, med, q, 4 * len(vs.tree[1]), 0.02, do_double, not do_double, exact[0], exact[1], state, 0)
+    spreads = []
+    for lobes in lobe_variants:
+        est = np.zeros((runs, 2, 3))
+        for k in range(runs):
+            double_multiple(vs._replace(lobes=lobes), med, q, 4, 0.02, do_double, not do_double, est[k, 0],
+                            est[k, 1], state, 0)
+        est = est[:, 0 if do_double else 1]
+        spreads.append(est.mean(1).std() / est.mean(1).mean())
+        if len(spreads) == 1:
+            assert np.all(np.abs(est.mean(0) - exact[0 if do_double else 1]) < 4 * est.std(0) / np.sqrt(runs))
+    return spreads
+
+
 def test_a_source_near_the_point_is_drawn_as_often_as_it_weighs_whatever_its_kernel_box():
     """A wide beam's short segment 0.25 from P, its lobe and phase toward P, among 2000 narrow ones 0.5-3 away, in a
     set whose single-scattering kernel is 8 beam radii wide (the octree's boxes hold it): the light cut judges its
     nodes by their samples' own extent (segment and beam radius), and the near source's nodes are not floored by its
     kernel's 3.2 radius. Judged by the kernel boxes (as the milk's bounced set was), the multiple term's relative
-    spread over 2000 cuts read 2.1, 0.44 now: it must be below half the kernel boxes' and unbiased."""
+    spread over 2000 cuts read 1.8, 0.36 now: it must be below half the kernel boxes' and unbiased."""
     lay = Layout(extent=10.0, n_rho=16, n_z=32, n_theta=9, n_phi=9, kill_radius=20.0)
     table, _ = build_table(0.95, 0.7, 1, TableSettings(particles=20000, layout=lay, sh_order=8))
-    rng = np.random.default_rng(12)
     n = 2001
-    P, w = np.zeros(3), np.array([1.0, 0.0, 0.0])
-    u = rng.normal(size=(n, 3))
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    centre = u * rng.uniform(0.5, 3.0, n)[:, None]
-    d = rng.normal(size=(n, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    centre, d = _cloud(np.random.default_rng(12), n, 0.5, 3.0)
     centre[0], d[0] = np.array([-0.25, 0.0, 0.0]), np.array([1.0, 0.0, 0.0])  # behind P, pointing through it
-    radius = np.where(np.arange(n) == 0, 0.4, 0.05)
-    length = np.full(n, 0.15)
-    samples = SimpleNamespace(v_start=centre - 0.5 * length[:, None] * d, v_dir=d, v_len=length,
-                              v_power=np.ones((n, 3)), v_area=np.pi * radius ** 2, v_medium=np.zeros(n, np.int64),
-                              v_ends=np.zeros(n, np.int64), v_plane=np.tile([0.0, 0.0, 1.0, np.inf] * 2, (n, 1)))
-    media = np.zeros((1, MED_COLS))
-    media[0, MED_SIGMA_A:MED_SIGMA_A + 3], media[0, MED_SIGMA_S:MED_SIGMA_S + 3] = 0.05, 0.95
-    media[0, MED_PHASE], media[0, MED_G] = 1, 0.7
-    vs = SampleSet(samples, 0, media, (table.render_args(),) * 3, beam_width=8.0).kernel
-    med, q = medium_params(media, 0), Query(*P, *w, NO_PLANE)
-    state = np.array([5], np.uint64)
-    exact = np.zeros(3)  # the multiple term's cut (a quarter of the double's) refined to every leaf
-    double_multiple(vs, med, q, 4 * len(vs.tree[1]), 0.02, False, True, np.zeros(3), exact, state, 0)
-    spreads = []
-    for lobes in (vs.lobes, node_lobes(vs.tree)):  # the samples' own extents, then the kernel boxes'
-        runs = np.zeros((2000, 3))
-        for k in range(len(runs)):
-            double_multiple(vs._replace(lobes=lobes), med, q, 4, 0.02, False, True, np.zeros(3), runs[k], state, 0)
-        spreads.append(runs.mean(1).std() / runs.mean(1).mean())
-        if not spreads[1:]:
-            assert np.all(np.abs(runs.mean(0) - exact) < 4 * runs.std(0) / np.sqrt(len(runs)))
+    vs, med = _sample_set(centre, d, np.full(n, 0.15), np.where(np.arange(n) == 0, 0.4, 0.05), 0.05, 0.95, 0.7,
+                          (table.render_args(),) * 3, 8.0)
+    q = Query(0.0, 0.0, 0.0, 1.0, 0.0, 0.0, NO_PLANE)
+    spreads = _cut_spreads(vs, med, q, (vs.lobes, node_lobes(vs.tree)), 2000, False)  # own extents, kernel boxes'
     assert spreads[0] < 0.5 * spreads[1], spreads
 
 
@@ -182,37 +200,14 @@ def test_a_node_holding_a_long_segment_by_the_point_is_judged_by_its_box():
     the light cut raises the node's importance by how much nearer P lies to its box (octree LOBE_LO, LOBE_HI).
     With each node's box collapsed to its centroid (judged at the centroid alone) double scattering's relative
     spread over 3000 cuts read 1.20, 0.78 with the boxes: it must stay below 0.8 of that, and unbiased."""
-    rng = np.random.default_rng(9)
     n = 2001
-    P, w = np.zeros(3), np.array([0.0, 0.6, 0.8])
-    u = rng.normal(size=(n, 3))
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    centre = u * rng.uniform(1.0, 3.0, n)[:, None]
-    d = rng.normal(size=(n, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    centre, d = _cloud(np.random.default_rng(9), n, 1.0, 3.0)
     length = np.full(n, 0.1)
     d[0], length[0], centre[0] = np.array([1.0, 0.0, 0.0]), 4.0, np.array([1.5, 0.2, 0.0])  # from (-0.5, 0.2, 0)
-    samples = SimpleNamespace(v_start=centre - 0.5 * length[:, None] * d, v_dir=d, v_len=length,
-                              v_power=np.ones((n, 3)), v_area=np.full(n, np.pi * 0.05 ** 2),
-                              v_medium=np.zeros(n, np.int64), v_ends=np.zeros(n, np.int64),
-                              v_plane=np.tile([0.0, 0.0, 1.0, np.inf] * 2, (n, 1)))
-    media = np.zeros((1, MED_COLS))
-    media[0, MED_SIGMA_A:MED_SIGMA_A + 3], media[0, MED_SIGMA_S:MED_SIGMA_S + 3] = 0.1, 0.9
-    media[0, MED_PHASE], media[0, MED_G] = 1, 0.5
-    vs = SampleSet(samples, 0, media, (empty_table().render_args(),) * 3, beam_width=2.0).kernel
-    med, q = medium_params(media, 0), Query(*P, *w, NO_PLANE)
-    state = np.array([5], np.uint64)
-    exact = np.zeros(3)
-    double_multiple(vs, med, q, len(vs.tree[1]), 0.02, True, False, exact, np.zeros(3), state, 0)
+    vs, med = _sample_set(centre, d, length, np.full(n, 0.05), 0.1, 0.9, 0.5, (empty_table().render_args(),) * 3,
+                          2.0)
     collapsed = vs.lobes.copy()
     collapsed[:, LOBE_LO:LOBE_LO + 3] = collapsed[:, LOBE_CENTRE:LOBE_CENTRE + 3]
     collapsed[:, LOBE_HI:LOBE_HI + 3] = collapsed[:, LOBE_CENTRE:LOBE_CENTRE + 3]
-    spreads = []
-    for lobes in (vs.lobes, collapsed):
-        runs = np.zeros((3000, 3))
-        for k in range(len(runs)):
-            double_multiple(vs._replace(lobes=lobes), med, q, 4, 0.02, True, False, runs[k], np.zeros(3), state, 0)
-        spreads.append(runs.mean(1).std() / runs.mean(1).mean())
-        if not spreads[1:]:
-            assert np.all(np.abs(runs.mean(0) - exact) < 4 * runs.std(0) / np.sqrt(len(runs)))
+    spreads = _cut_spreads(vs, med, Query(0.0, 0.0, 0.0, 0.0, 0.6, 0.8, NO_PLANE), (vs.lobes, collapsed), 3000, True)
     assert spreads[0] < 0.8 * spreads[1], spreads
