@@ -26,6 +26,7 @@ def main():
     import pbvol_cli.pointbased.camera_pass as camera_pass
     import pbvol_cli.pointbased.gather as gather
     import pbvol_cli.pointbased.passes as passes
+    import pbvol_cli.pointbased.radiance_cache as radiance_cache
     from pbvol_cli.pipeline.render import RenderOptions, render_scene
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -53,7 +54,8 @@ def main():
 
     timed(gather, "_on_threads", "medium terms per point (single, and all after a diffuse bounce)")
     timed(gather, "single_scattering_at_points", "single scattering at a batch's points (by samples or point by point)")
-    timed(gather, "shared_terms", "medium terms shared in bins (double, multiple, bounced)")
+    timed(radiance_cache.DeferredBins, "flush", "medium terms shared in bins (double, multiple, bounced)")
+    timed(camera_pass, "_pilot", "the pilot's surface-only paths (the first passes' path counts)")
     timed(passes, "place_light_samples", "light side: a new light-sample set")
     timed(passes, "SampleSet", "light side: octrees over the volume samples")
     timed(passes, "_bounced_set", "light side: the bounced samples")

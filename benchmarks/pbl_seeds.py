@@ -6,11 +6,11 @@
 
 Each --set is one variant: comma-separated [render.pbl] overrides ('' : the scene's own settings). Each variant
 renders the scene once per seed in this process, after an 8 x 8 render of the same seed (its light samples are
-then cached and its kernels compiled: the timed render is warm), and prints the mean time per render, the relMSE
-against the reference (mean, least and largest over the seeds, the reference's own noise subtracted), error x time,
-and the relMSE of the seeds' mean image over 8 x 8 blocks (noise falls there, a bias stays: an upper estimate of
-the variant's bias). The reference is benchmarks/pbl_speed.py's (two volpath halves, cached under --cache).
-pbl_ab.py compares noise without a reference; this compares error, bias included.
+then cached and its kernels compiled: the timed render is warm), and prints the relMSE against the reference per
+seed, then the mean time per render, the relMSE (mean, least and largest over the seeds, the reference's own noise
+subtracted), error x time and the relMSE of the seeds' mean image over 8 x 8 blocks (noise falls there, a bias
+stays: an upper estimate of the variant's bias). The reference is benchmarks/pbl_speed.py's (two volpath halves,
+cached under --cache). pbl_ab.py compares noise without a reference; this compares error, bias included.
 """
 
 from __future__ import annotations
@@ -60,6 +60,7 @@ def main():
             times.append(s["time_s"])
             errors.append(rel_mse(images[-1], ref) - ref_noise)
         t, e = float(np.mean(times)), float(np.mean(errors))
+        print("  per seed: " + ", ".join(f"{sd} {er:.4f}" for sd, er in zip(seeds, errors)))
         print(f"{args.scene} {variant or '(scene settings)'}: {t:.2f} s per render, relMSE {e:.5f} "
               f"({min(errors):.5f}-{max(errors):.5f}), error x time {e * t:.5f}, the seeds' mean over 8 x 8 blocks "
               f"{block_rel_mse(sum(images) / len(images), ref):.6f}", flush=True)
