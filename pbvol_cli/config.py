@@ -392,6 +392,10 @@ class PblSettings(Strict):
     term_shares: Bool = Field(True, description="a bin evaluates the lesser of double and multiple scattering (by "
                               "its second moment in the pass so far) at a random share of the bins, weighted by its "
                               "inverse: unbiased, less time for the same noise (docs/pbl.md); false: every bin both")
+    bin_splits: Num = Field(0.0, ge=0, le=8, description="a pass evaluates its smooth terms' bins once each and this "
+                            "share of their number again, dealt to the bins whose noise weighs most in the image (by "
+                            "their points' weights per pixel; unbiased). Pays where the image's noise is the smooth "
+                            "terms' (milk, wax: 0.5), costs where it is the surfaces' (docs/pbl.md); 0: once each")
     diffuse_shares: Bool = Field(True, description="the camera rays after a diffuse bounce evaluate the medium's "
                                  "smooth terms on a share of them from the third pass on, by the splitting optimum of "
                                  "their measured second moment against the pass's variance, weighted by its inverse "

@@ -204,23 +204,49 @@ def bin_groups(keys: np.ndarray) -> np.ndarray:
     return np.unique(flat, return_inverse=True)[1].ravel()
 
 
-def representatives(group: np.ndarray, weight: np.ndarray, rng) -> np.ndarray:
-    """For each bin 0..max(group), one of its points drawn with probability proportional to its weight (one number
-    per point: shared_terms passes the channels' sum): the bin's total, sum of weight_i x L(representative), is
-    then an unbiased estimate of sum of weight_i x L(x_i) (a uniform draw would be biased where the weights and the
-    light vary together across a bin, as the boundary's Fresnel transmission and the light do across a sphere, or
-    the channels' transmittance and the light with the depth). A bin of zero weight takes its first point."""
+def representatives(group: np.ndarray, weight: np.ndarray, rng, bins: np.ndarray | None = None) -> np.ndarray:
+    """For each bin 0..max(group) (or each entry of bins, which may repeat a bin), one of its points drawn with
+    probability proportional to its weight (one number per point: shared_terms passes the channels' sum): the
+    bin's total, sum of weight_i x L(representative), is then an unbiased estimate of sum of weight_i x L(x_i) (a
+    uniform draw would be biased where the weights and the light vary together across a bin, as the boundary's
+    Fresnel transmission and the light do across a sphere, or the channels' transmittance and the light with the
+    depth). A bin of zero weight takes its first point. group numbers the bins 0..max(group), each present."""
     order = np.argsort(group, kind="stable")
     g = group[order]
     w = np.maximum(weight[order], 0.0)
     start = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
     end = np.r_[start[1:], len(g)]
+    if bins is not None:
+        start, end = start[bins], end[bins]
     cw = np.cumsum(w)
     before = np.r_[0.0, cw][start]
     total = cw[end - 1] - before
     pick = np.searchsorted(cw, before + rng.random(len(start)) * total, side="right")
     pick = np.where(total > 0, np.clip(pick, start, end - 1), start)
     return order[pick]
+
+
+def extra_evaluations(group: np.ndarray, pixel: np.ndarray, weight: np.ndarray, pixel_factor: np.ndarray,
+                      splits: float, rng) -> np.ndarray:
+    """How many more times than once each bin is evaluated (nbins,), `splits` x the bins in all, dealt in
+    proportion to sqrt(S_b): S_b = sum over pixels p of (W_bp)^2 pixel_factor[p], W_bp the weight of bin b's points
+    in pixel p (channels summed), pixel_factor the pixel's 1 / (its estimate's divisor^2 x its image^2 + 0.01): the
+    share of the image's relMSE a bin's noise holds, if every bin's light were alike and as noisy. The splitting
+    optimum (the least sum of S_b / n_b at a fixed sum of n_b); fractions rounded at random. The counts depend on
+    the points' weights and the image before the pass only, never on an evaluation: each bin's mean stays
+    unbiased."""
+    nb = int(group.max()) + 1 if len(group) else 0
+    if nb == 0 or splits <= 0.0:
+        return np.zeros(nb, np.int64)
+    npix = len(pixel_factor)
+    key, inv = np.unique(group.astype(np.int64) * npix + pixel, return_inverse=True)
+    w_bp = np.bincount(inv.ravel(), weights=weight)
+    s = np.bincount(key // npix, weights=w_bp * w_bp * pixel_factor[key % npix], minlength=nb)
+    root = np.sqrt(np.maximum(s, 0.0))
+    if not root.sum() > 0.0:
+        return np.zeros(nb, np.int64)
+    share = splits * nb * root / root.sum()
+    return (np.floor(share) + (rng.random(nb) < share - np.floor(share))).astype(np.int64)
 
 
 def thread_parts(owner: np.ndarray, threads: int) -> list[np.ndarray]:
@@ -290,18 +316,29 @@ def shared_terms(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settin
 
 
 def binned_terms(pool, threads, pts: ScatteredPoints, rng, med, vs, settings, cache: CacheSettings, bin_rng,
-                 term_shares: TermShares | None = None):
+                 term_shares: TermShares | None = None, image=None):
     """(contrib (m, 3 layers, 3), evaluations): each point's share of its bin's smooth terms (shared_terms's), the
-    representatives' random states rng[pts.owner]."""
+    representatives' random states rng[pts.owner]. image: (pixel (m,), pixel_factor (npix,), splits): each point's
+    pixel and extra_evaluations' factors and share, the bins then evaluated more than once where the image's noise
+    asks (each evaluation at a representative of its own, their mean the bin's value); None: once each."""
     mfp = 1.0 / float(np.max(med.sigma_a + med.sigma_s))
     depth = pts.plane[:, 3] - np.einsum("ij,ij->i", pts.plane[:, :3], pts.pos)
     keys = bin_keys(pts.pos, pts.dir, depth, lateral_width(cache, mfp, vs), cache.cell * mfp, cache.directions,
                     bin_rng)
     group = bin_groups(keys)
-    reps = representatives(group, pts.weight.sum(axis=1), bin_rng)
+    weight = pts.weight.sum(axis=1)
+    reps = representatives(group, weight, bin_rng)
+    nb = len(reps)
+    of_bin = np.arange(nb)  # each evaluation's bin
+    if image is not None:
+        extra = extra_evaluations(group, image[0], weight, image[1], image[2], bin_rng)
+        if extra.any():
+            more = np.repeat(of_bin, extra)
+            reps = np.concatenate([reps, representatives(group, weight, bin_rng, more)])
+            of_bin = np.concatenate([of_bin, more])
     values = np.zeros((len(reps), 3, 3))
     do_single = bool(cache.single and settings.single)
-    w_bin = np.stack([np.bincount(group, weights=pts.weight[:, c], minlength=len(reps)) for c in range(3)], axis=1)
+    w_bin = np.stack([np.bincount(group, weights=pts.weight[:, c], minlength=nb) for c in range(3)], axis=1)
     if term_shares is None or not (settings.double and settings.multiple):
         _evaluate_on_threads(pool, threads, reps, pts, rng, med, vs, settings, do_single, values)
     else:
@@ -311,18 +348,23 @@ def binned_terms(pool, threads, pts: ScatteredPoints, rng, med, vs, settings, ca
             part = np.zeros((len(pilot), 3, 3))
             _evaluate_on_threads(pool, threads, reps[pilot], pts, rng, med, vs, settings, do_single, part)
             values[pilot] = part
-            term_shares.add(part, w_bin[pilot])
+            term_shares.add(part, w_bin[of_bin[pilot]])
             rest = np.setdiff1d(rest, pilot)
         shares = term_shares.shares()
         _evaluate_shares(pool, threads, reps, rest, pts, rng, med, vs, settings, do_single, values, shares, bin_rng)
-        term_shares.add(values[rest], w_bin[rest], shares)
+        term_shares.add(values[rest], w_bin[of_bin[rest]], shares)
     # the draw follows the weights' channel sum; per channel c the bin's total stays unbiased when it is scaled by
     # (w_rc / w_r) / (W_c / W): the representative's share of channel c over the bin's
-    w_rep = pts.weight[reps]
+    w_rep, w_b = pts.weight[reps], w_bin[of_bin]
     with np.errstate(divide="ignore", invalid="ignore"):
-        scale = (w_rep / w_rep.sum(axis=1, keepdims=True)) / (w_bin / w_bin.sum(axis=1, keepdims=True))
+        scale = (w_rep / w_rep.sum(axis=1, keepdims=True)) / (w_b / w_b.sum(axis=1, keepdims=True))
     scale = np.where(np.isfinite(scale), scale, 1.0)
-    contrib = values[group] * (pts.weight * scale[group])[:, None, :]
+    values *= scale[:, None, :]
+    if len(reps) > nb:  # a bin's value: the mean of its evaluations
+        count = np.bincount(of_bin, minlength=nb)
+        values = np.stack([np.stack([np.bincount(of_bin, weights=values[:, t, c], minlength=nb) for c in range(3)],
+                                    axis=1) for t in range(3)], axis=1) / count[:, None, None]
+    contrib = values[group] * pts.weight[:, None, :]
     if not do_single:
         contrib[:, 0] = 0.0
     return contrib, len(reps)
@@ -339,8 +381,10 @@ class DeferredBins:
     unbiased (representatives); the representatives' light cuts take random states of their own, drawn from the
     flush's generator."""
 
-    def __init__(self, bin_rng, npix: int):
+    def __init__(self, bin_rng, npix: int, pixel_factor: np.ndarray | None = None, splits: float = 0.0):
         self.bin_rng, self.npix = bin_rng, npix  # (numpy Generator: the bins' draws; the layers' pixels)
+        # binned_terms's image factors (npix,) and share of extra evaluations (None or 0: each bin once)
+        self.pixel_factor, self.splits = pixel_factor, float(splits)
         self.parts = {}  # key -> (VolumeSamples, Medium, settings, cache, TermShares, layers, [point arrays])
         self.count = 0  # the points held
 
@@ -382,7 +426,8 @@ class DeferredBins:
             m = len(pixel)
             pts = ScatteredPoints(pos, wdir, weight, plane, np.arange(m, dtype=np.int64))
             rng = bin_rng.integers(0, 1 << 63, m, dtype=np.int64).view(np.uint64)  # a state per point
-            contrib, k = binned_terms(pool, threads, pts, rng, med, vs, settings, cache, bin_rng, term_shares)
+            image = None if self.pixel_factor is None or self.splits <= 0 else (pixel, self.pixel_factor, self.splits)
+            contrib, k = binned_terms(pool, threads, pts, rng, med, vs, settings, cache, bin_rng, term_shares, image)
             n += k
             for layer, target in enumerate(layers):
                 if target is None:
