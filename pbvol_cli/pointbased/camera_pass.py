@@ -494,8 +494,9 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         single = DeferredSingle()  # the lights' single scattering, evaluated for many batches at once
         # the smooth terms' bins, evaluated for many batches and depths at once
         # (a pixel's share of the image's relMSE per unit of its medium points' weight squared: those weights hold
-        # its path count k, which its estimate divides by; the pilot's or the passes' image so far)
-        den = diffuse.den.mean(axis=1) if diffuse.den is not None else np.ones(npix)
+        # its path count k, which its estimate divides by; the pilot's or the passes' image so far with auto
+        # counts, none with a fixed count, whose passes follow nothing before them)
+        den = diffuse.den.mean(axis=1) if diffuse.den is not None and pbl.surface_paths == 0 else np.ones(npix)
         bins = DeferredBins(np.random.default_rng([seed, p, 0xB125]), npix, 1.0 / (den * (k * k)), pbl.bin_splits)
         term_shares = {} if pbl.term_shares else None  # how often the bins evaluate double and multiple scattering
         # (the segment term marches every path's segments with the batch's random numbers: its batches stay whole)

@@ -63,11 +63,14 @@ PASS_SCENE = dict(SCENE, render={"spp": 2, "seed": 4, "pbl": {"surface_paths": 2
                                  "lut": {"particles": 1000}, "dipole": {"min_samples": 500, "max_samples": 500}})
 
 
-@pytest.mark.parametrize("method", ["pbl", "dipole", "raymarch", "vpl"])
-def test_passes_merge_into_the_whole_render_bit_for_bit(tmp_path, method):
+@pytest.mark.parametrize("method,pbl", [("pbl", {}), ("pbl", {"bin_splits": 0.5}), ("dipole", {}), ("raymarch", {}),
+                                        ("vpl", {})])
+def test_passes_merge_into_the_whole_render_bit_for_bit(tmp_path, method, pbl):
     """Every pass-based method: parts of passes merge into one render of them all, image and layers, bit for bit
-    (light samples, VPLs and irradiance samples are seeded by the pass; the camera paths by the paths before)."""
-    scene = write_scene(tmp_path, PASS_SCENE)
+    (light samples, VPLs and irradiance samples are seeded by the pass; the camera paths by the paths before; with
+    a fixed path count the bins' extra evaluations follow no pass before)."""
+    render = dict(PASS_SCENE["render"], pbl=dict(PASS_SCENE["render"]["pbl"], **pbl))
+    scene = write_scene(tmp_path, dict(PASS_SCENE, render=render))
     common = ["--method", method, "--cache-dir", str(tmp_path / "cache")]
     whole = _render(tmp_path, scene, "whole.exr", "--spp", "5", *common)
     parts = [_render(tmp_path, scene, f"p{a}.exr", "--samples", f"{a}:{b}", *common) for a, b in ((0, 1), (1, 5))]
