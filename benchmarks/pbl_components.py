@@ -2,13 +2,16 @@
 """Each point-based component against the path tracer restricted to the same number of scattering events.
 
     .venv/bin/python benchmarks/pbl_components.py [--scenes a,b] [--resolution 48] [--pbl-spp 8]
-                                                 [--ref-spp 1024] [--threads 2] [--cache DIR]
+                                                 [--ref-spp 1024] [--bands 0] [--threads 2] [--cache DIR]
 
 For each scene: one pbl render (its layers single, double, multiple, bounced) and volpath --orders 1, 2 and 3+,
 each as two halves with different seeds (kept in the cache). Printed per component and channel: the ratio of image means pbl / volpath (the
 bias that survives averaging) and the relMSE of pbl against the volpath mean, next to the relMSE of the
 reference's own noise (a quarter of its halves' relMSE against each other) and the ratio of the halves' means
 (a reference whose halves differ by more than a few % is not converged: its order's paths are heavy-tailed).
+With --bands N, the same ratios for single, multiple (alone and with bounced) and bounced over N bands of image
+rows, where order 3+ is at least 5 % of its brightest pixel: where in the image a bias sits (a boundary, a face).
+A scene is a config name in configs/ or a scene file (benchmarks/scenes/ holds scenes that isolate one effect).
 Light that scattered in the medium, left it and came back from the scene (a table) is in pbl's bounced layer (the
 light samples' v_returned part): of order 2 and above, like the rest of that layer.
 """
@@ -37,6 +40,7 @@ def main():
     ap.add_argument("--pbl-spp", type=int, default=8)
     ap.add_argument("--pbl-seed", type=int, default=1, help="pbl's seed (the references' are fixed)")
     ap.add_argument("--ref-spp", type=int, default=1024)
+    ap.add_argument("--bands", type=int, default=0, help="also print the ratios over this many bands of rows")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
     args = ap.parse_args()
@@ -47,7 +51,8 @@ def main():
     print(f"{'scene':<14} {'component':<12} {'mean ratio pbl/vp (R G B)':<29} {'relMSE':>8} {'ref noise':>9} "
           f"{'halves R G B':>14}")
     for name in [s for s in args.scenes.split(",") if s]:
-        scene = ROOT / "configs" / f"{name}.toml"
+        scene = Path(name) if name.endswith(".toml") else ROOT / "configs" / f"{name}.toml"
+        name = scene.stem
         pbl_out = out / f"{name}_pbl.exr"
         # the media as given: the similarity transform's layers are not the scattering orders
         as_given = with_pbl(scene, out / "as_given", {"similarity": "none"})
@@ -81,6 +86,32 @@ def main():
             halves = h0.mean((0, 1)) / np.maximum(h1.mean((0, 1)), 1e-30)
             print(f"{name:<14} {comp:<12} {' '.join(f'{r:.3f}' for r in ratio):<29} "
                   f"{rel_mse(mine, ref):>8.4f} {noise:>9.5f} {' '.join(f'{h:.2f}' for h in halves):>14}", flush=True)
+        if args.bands:
+            print_bands(layers, {o: 0.5 * (h[0] + h[1]) for o, h in refs.items()}, args.bands)
+
+
+def print_bands(layers, refs, bands: int):
+    """pbl / volpath per band of rows (channels summed) over the pixels where order 3+ is at least 5 % of its
+    brightest pixel; each band's share of 3+ says how much of the image it weighs."""
+    import numpy as np
+
+    sky = refs["3+"].sum(axis=2)
+    mask = sky > 0.05 * sky.max()
+    rows = np.flatnonzero(mask.any(axis=1))
+    if len(rows) == 0:
+        return
+    bounced = layers.get("bounced", np.zeros_like(layers["single"]))
+    pairs = [("single / 1", layers["single"], "1"), ("multiple / 3+", layers["multiple"], "3+"),
+             ("bounced / 3+", bounced, "3+"), ("mult+bounced / 3+", layers["multiple"] + bounced, "3+")]
+    print(f"  {'rows':<9} {'share of 3+':>11} " + " ".join(f"{p[0]:>17}" for p in pairs))
+    total = sky[mask].sum()
+    for band in np.array_split(np.arange(rows[0], rows[-1] + 1), min(bands, rows[-1] + 1 - rows[0])):
+        m = np.zeros_like(mask)
+        m[band] = mask[band]
+        if not m.any():
+            continue
+        cells = [mine.sum(axis=2)[m].sum() / max(refs[o].sum(axis=2)[m].sum(), 1e-30) for _, mine, o in pairs]
+        print(f"  {f'{band[0]}-{band[-1]}':<9} {sky[m].sum() / total:>11.3f} " + " ".join(f"{c:>17.3f}" for c in cells))
 
 
 if __name__ == "__main__":

@@ -23,7 +23,8 @@ def test_the_committed_reference_matches_the_models():
     assert (ROOT / "docs" / "scene-format.md").read_text() == markdown_reference() + "\n"
 
 
-@pytest.mark.parametrize("kind, folder", [("scene", "configs"), ("material", "materials")])
+@pytest.mark.parametrize("kind, folder", [("scene", "configs"), ("scene", "benchmarks/scenes"),
+                                          ("material", "materials")])
 def test_every_shipped_file_validates_against_the_schema(kind, folder):
     validator = jsonschema.Draft202012Validator(json_schema(kind))
     files = sorted((ROOT / folder).glob("*.toml"))
