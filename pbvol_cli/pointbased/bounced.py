@@ -40,7 +40,7 @@ from pbvol_cli.physics.sampling import cosine_around, rand, seed_state
 from pbvol_cli.pointbased.beams import Beams, beam_segments, layer_reflectance, slab_reflectance
 from pbvol_cli.pointbased.gather import eval_segments, segment_planes
 from pbvol_cli.pointbased.surface_samples import SHARING_RADIUS, poisson_disk, share_among_neighbours
-from pbvol_cli.pointbased.volume_samples import SAMPLE_KEYS, medium_params, scattered_share
+from pbvol_cli.pointbased.volume_samples import SAMPLE_KEYS, scattered_share
 from pbvol_cli.render.interfaces import indices
 
 
@@ -128,7 +128,7 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
     the first generation gathers too (the light the scene sent back: volume_samples.returned_samples), or None;
     make_set(samples) builds one from a namespace of v_* arrays; settings: the gather rays' GatherSettings.
     Returns the union of the generations as such a namespace, or None when the boundary reflects nothing."""
-    med = medium_params(bs.media, medium)
+    med = source.medium  # (with the flat faces of its boundary)
     pos, nin, sid, area, spacing = boundary_points(bs, medium, count, seed)
     n = len(pos)
     if n == 0:

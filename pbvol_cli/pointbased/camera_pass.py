@@ -735,7 +735,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
             sub = inside[medium[inside] == m]
             lit, bounced = media_data.get(int(m), (None, None))
             ms = sub[evm[sub]]  # the paths that evaluate the medium in this pass
-            med = medium_params(bs.media, int(m))
+            med = lit.medium if lit is not None else medium_params(bs.media, int(m))  # (lit's: with its faces)
             if lit is not None and lit.count and len(ms):
                 # weak branches (internal reflections) are evaluated with probability beta_max / roulette,
                 # their weight divided by it: unbiased, and most of the cost was in branches of weight < 0.01.

@@ -28,6 +28,8 @@ Source.__doc__ = """A point source: position, unit direction of its beam, scatte
 the ball its double scattering is smeared over (scene units)."""
 
 IMAGE_EXTRAPOLATION = 0.25  # transport mean free paths by which the image planes lie beyond the boundary
+FLAT_FACE_EXTRAPOLATION = 0.4  # the same under a flat face of the boundary (flat_faces.py): the slab's furnace
+# read multiple / 3+ 0.81 at 0.25 and 1.04 at 0.5, and the milk glass was dark next to its faces (docs/pbl.md)
 NEAR_SUB = 8  # sub-points along a segment that is close to P (double scattering)
 MS_CELL = 0.1  # mean free paths: segments longer than this are split for the multiple-scattering look-up
 
@@ -49,6 +51,16 @@ def transport_share(kind, g):
     """1 - mean cosine of the phase function: sigma_t' = sigma_a + this x sigma_s (Henyey-Greenstein and Schlick:
     g; the others are treated as symmetric)."""
     return 1.0 - g if kind == 1 or kind == 2 else 1.0
+
+
+@njit(inline="always", cache=True)
+def on_flat_face(faces, nx, ny, nz, q):
+    """Whether the plane n . x = q (unit n, either orientation) is one of faces (flat_faces.medium_faces's)."""
+    for f in range(faces.shape[0]):
+        c = nx * faces[f, 0] + ny * faces[f, 1] + nz * faces[f, 2]
+        if abs(c) > 1.0 - 1e-6 and abs(q - c * faces[f, 3]) <= faces[f, 4]:
+            return True
+    return False
 
 
 @njit(cache=True)
@@ -90,7 +102,8 @@ def source_terms(src, plane, med, q, rclamp, do_double, do_multiple, tabs, split
         # end plane), each plane moved out by IMAGE_EXTRAPOLATION transport mean free paths. Each image gives a
         # factor f = 1 - image / table in [0, 1] (the half-space's response is never negative); P's factor enters
         # as f_P^w, w = (1 - n . n_P) / 2: where both points are under the same plane it is the same image, counted
-        # once, while a source under the far side of a body (n_P = -n) gets both (docs/pbl.md).
+        # once, while a source under the far side of a body (n_P = -n) gets both (docs/pbl.md). A plane on a flat
+        # face of the boundary takes FLAT_FACE_EXTRAPOLATION instead (flat_faces.py).
         image = qn < np.inf
         image_p = pplane[3] < np.inf
         dn = 2.0 * (dx * nx + dy * ny + dz * nz)
@@ -99,6 +112,9 @@ def source_terms(src, plane, med, q, rclamp, do_double, do_multiple, tabs, split
         dp = 2.0 * (dx * ax + dy * ay + dz * az)
         fx, fy, fz = dx - dp * ax, dy - dp * ay, dz - dp * az
         wp = 0.5 * (1.0 - (nx * ax + ny * ay + nz * az)) if image else 1.0
+        k_s = FLAT_FACE_EXTRAPOLATION if image and on_flat_face(med.faces, nx, ny, nz, qn) else IMAGE_EXTRAPOLATION
+        k_p = (FLAT_FACE_EXTRAPOLATION if image_p and on_flat_face(med.faces, ax, ay, az, pplane[3])
+               else IMAGE_EXTRAPOLATION)
         # the table read no nearer the source than its extent, as double scattering's ball: a sample stands for
         # light spread over its kernel, and its table value a hundredth of a mean free path away was a rare spike
         # of hundreds of times the mean (the milk's tails, docs/pbl.md)
@@ -118,13 +134,13 @@ def source_terms(src, plane, med, q, rclamp, do_double, do_multiple, tabs, split
             if v0 <= 0.0:
                 continue
             v = v0
-            zb = IMAGE_EXTRAPOLATION / max(sig_a[c] + transport_share(kind, g) * sig_s[c], 1e-30)
+            transport_mfp = 1.0 / max(sig_a[c] + transport_share(kind, g) * sig_s[c], 1e-30)
             if image:
-                h = 2.0 * (max(qn - (nx * x + ny * y + nz * z), 0.0) + zb)
+                h = 2.0 * (max(qn - (nx * x + ny * y + nz * z), 0.0) + k_s * transport_mfp)
                 vi = scaled_lookup(tabs[c], Pc, st, rx - h * nx, ry - h * ny, rz - h * nz, ex, ey, ez, wx, wy, wz)
                 v *= min(max(1.0 - vi / v0, 0.0), 1.0)
             if image_p and wp > 0.0 and v > 0.0:
-                h = 2.0 * (max(pplane[3] - (ax * x + ay * y + az * z), 0.0) + zb)
+                h = 2.0 * (max(pplane[3] - (ax * x + ay * y + az * z), 0.0) + k_p * transport_mfp)
                 vi = scaled_lookup(tabs[c], Pc, st, rx - h * ax, ry - h * ay, rz - h * az, fx, fy, fz, wx, wy, wz)
                 v *= min(max(1.0 - vi / v0, 0.0), 1.0) ** wp
             out_m[c] += v

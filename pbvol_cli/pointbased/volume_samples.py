@@ -40,8 +40,12 @@ near-field radius (scene units); lobes: the tree's octree.node_lobes (the light 
 side of the box around the segments (the medium's size along its thinnest axis, scene units; 0: unknown);
 leg_first (L,), leg_span (L, 2): each leg's first sample and the stretch of its axis that its kernel cylinder spans,
 from that sample's start (leg_table; empty: the samples are not grouped in legs)."""
-Medium = namedtuple("Medium", ["sigma_a", "sigma_s", "phase", "g"])
-Medium.__doc__ = """A homogeneous medium for the kernels: sigma_a, sigma_s (3,) in 1/scene unit, phase kind, g."""
+# a flat face of a medium's boundary (flat_faces.py): unit normal (3), q (n . x = q on it), tolerance on q
+FACE_COLS = 5
+NO_FACES = np.zeros((0, FACE_COLS))
+Medium = namedtuple("Medium", ["sigma_a", "sigma_s", "phase", "g", "faces"], defaults=(NO_FACES,))
+Medium.__doc__ = """A homogeneous medium for the kernels: sigma_a, sigma_s (3,) in 1/scene unit, phase kind, g, and
+the flat faces of its boundary (k, FACE_COLS) (flat_faces.medium_faces; none by default)."""
 Query = namedtuple("Query", ["x", "y", "z", "wx", "wy", "wz", "plane"])
 Query.__doc__ = """The point P where in-scattered radiance is wanted, toward the propagation direction w (toward the
 camera), and P's boundary plane (n_x, n_y, n_z, q) with n . x = q on it (q = inf: none; NO_PLANE)."""
@@ -70,11 +74,11 @@ def nearer_plane(planes, i, px, py, pz):
     return EXIT_N if exit_depth < entry_depth else ENTRY_N
 
 
-def medium_params(media: np.ndarray, m: int) -> Medium:
-    """Medium m of a built scene's media table."""
+def medium_params(media: np.ndarray, m: int, faces: np.ndarray = NO_FACES) -> Medium:
+    """Medium m of a built scene's media table, with the flat faces of its boundary (flat_faces.medium_faces)."""
     row = media[m]
     return Medium(row[MED_SIGMA_A:MED_SIGMA_A + 3], row[MED_SIGMA_S:MED_SIGMA_S + 3], int(row[MED_PHASE]),
-                  float(row[MED_G]))
+                  float(row[MED_G]), faces)
 
 
 def near_field_radius(start, dirs, length, rb, ends_box=None, sigma_t_max: float = math.inf) -> float:
@@ -205,16 +209,18 @@ def leg_table(v_leg, idx, order, start, dirs, length, area, ends):
 class SampleSet:
     """One medium's volume samples prepared for the kernels (see the module docstring); .kernel is the bundle."""
 
-    def __init__(self, samples, medium: int, media: np.ndarray, tables: tuple, beam_width: float = 1.0):
+    def __init__(self, samples, medium: int, media: np.ndarray, tables: tuple, beam_width: float = 1.0,
+                 faces: np.ndarray = NO_FACES):
         """samples: LightSamples (its volume samples of light that has not scattered before reaching the surface
         samples: v_returned == 0) or a namespace of v_* arrays (all taken); media: the built scene's media table;
-        tables: the medium's three tables as MSTable.render_args() (R, G, B)."""
+        tables: the medium's three tables as MSTable.render_args() (R, G, B); faces: the flat faces of the
+        medium's boundary (flat_faces.medium_faces), in .medium."""
         sel = samples.v_medium == medium
         returned = getattr(samples, "v_returned", None)
         if returned is not None:
             sel &= returned == 0
         idx = np.flatnonzero(sel)
-        self.medium = medium_params(media, medium)
+        self.medium = medium_params(media, medium, faces)
         st = self.medium.sigma_a + self.medium.sigma_s
         albedo = np.where(st > 0, self.medium.sigma_s / np.where(st > 0, st, 1.0), 0.0)
         arrays = [np.ascontiguousarray(a) for a in (samples.v_start, samples.v_dir, samples.v_len,

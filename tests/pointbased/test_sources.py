@@ -5,8 +5,9 @@ import pytest
 
 from pbvol_cli.multiple_scattering.layout import Layout
 from pbvol_cli.multiple_scattering.table import TableSettings, build_table, scaled_lookup
-from pbvol_cli.pointbased.sources import IMAGE_EXTRAPOLATION, Source, source_terms
-from pbvol_cli.pointbased.volume_samples import NO_PLANE, Medium, Query
+from pbvol_cli.pointbased.sources import (FLAT_FACE_EXTRAPOLATION, IMAGE_EXTRAPOLATION, Source, on_flat_face,
+                                          source_terms)
+from pbvol_cli.pointbased.volume_samples import FACE_COLS, NO_PLANE, Medium, Query
 
 
 def test_multiple_term_of_a_source_with_its_image_is_never_negative():
@@ -136,3 +137,49 @@ def test_multiple_term_reads_the_table_no_nearer_than_the_sources_extent():
         r = read * u if read is not None else 0.13 * d  # (at the source itself: its extent ahead along its beam)
         expected = scaled_lookup(tab, 1.0, 1.0, *r, *d, *w)
         assert expected > 0 and np.all(out_m == pytest.approx(expected, rel=1e-12)), (dist, out_m, expected)
+
+
+def test_images_in_a_flat_face_lie_farther_out():
+    """Both images (the source's plane and P's) move out by FLAT_FACE_EXTRAPOLATION transport mean free paths
+    where the plane is one of the medium's flat faces (either orientation, within the face's tolerance), by
+    IMAGE_EXTRAPOLATION elsewhere: the same value as the formula with each distance, and more light under the
+    face (an index-matched slab read 0.75 of volpath with the curved bodies' distance under its faces)."""
+    lay = Layout(extent=10.0, n_rho=16, n_z=32, n_theta=9, n_phi=9, kill_radius=20.0)
+    table, _ = build_table(0.95, 0.0, 1, TableSettings(particles=20000, layout=lay, sh_order=8))
+    tab = table.render_args()
+    sig_a, sig_s = np.full(3, 0.05), np.full(3, 0.95)
+    top = np.array([0.0, 0.0, 1.0, 0.0])  # the face z = 0, the medium below
+    d = np.array([0.0, 0.6, -0.8])
+    x, p = np.array([0.0, 0.0, -0.3]), np.array([0.4, 0.2, -0.5])
+
+    def multiple(faces):
+        out_m = np.zeros(3)
+        source_terms(Source(*x, *d, 1.0, 1.0, 1.0, 0.05), np.array([*top, *top]),
+                     Medium(sig_a, sig_s, 1, 0.0, faces), Query(*p, 0.0, 0.0, 1.0, top), 0.02, False, True,
+                     (tab,) * 3, 0.0, np.zeros(3), out_m)
+        return out_m[0]
+
+    def expected(k):
+        r = p - x
+        v = scaled_lookup(tab, 1.0, 1.0, *r, *d, 0.0, 0.0, 1.0)
+        vi = scaled_lookup(tab, 1.0, 1.0, *(r - np.array([0.0, 0.0, 2 * (0.3 + k)])), *(d * [1, 1, -1]), 0.0, 0.0,
+                           1.0)
+        return v * (1 - vi / v)
+
+    face = np.array([[0.0, 0.0, -1.0, -0.0, 1e-3]])  # the same plane, the other orientation
+    elsewhere = np.array([[0.0, 0.0, 1.0, 0.01, 1e-3],  # parallel, 10x its tolerance away
+                          [1.0, 0.0, 0.0, 0.0, 1e-3]])  # tilted
+    assert face.shape[1] == elsewhere.shape[1] == FACE_COLS
+    assert multiple(elsewhere) == multiple(np.zeros((0, FACE_COLS)))
+    assert multiple(elsewhere) == pytest.approx(expected(IMAGE_EXTRAPOLATION), rel=1e-9)
+    assert multiple(face) == pytest.approx(expected(FLAT_FACE_EXTRAPOLATION), rel=1e-9)
+    assert multiple(face) > 1.05 * multiple(elsewhere) > 0  # (the farther image takes less away)
+
+
+def test_a_plane_is_on_a_flat_face_in_either_orientation_within_its_tolerance():
+    faces = np.array([[0.0, 1.0, 0.0, 2.0, 0.01]])
+    assert on_flat_face(faces, 0.0, 1.0, 0.0, 2.005)
+    assert on_flat_face(faces, 0.0, -1.0, 0.0, -2.0)
+    assert not on_flat_face(faces, 0.0, 1.0, 0.0, 2.02)
+    assert not on_flat_face(faces, 0.0, 0.6, 0.8, 2.0)
+    assert not on_flat_face(np.zeros((0, FACE_COLS)), 0.0, 1.0, 0.0, 2.0)
