@@ -109,12 +109,17 @@ def _furnace_centres(tmp_path, g: float, lut=None, **pbl) -> list:
     scene = {"camera": camera((12, 12), position=(0, 0, 3.0), fov=30),
              "render": {"spp": 16, "pbl": {"surface_paths": 1, **pbl}, "lut": lut or {}},
              "lights": [{"type": "environment", "radiance": 1.0}], "shapes": [shape]}
+    return _seeds_centres(tmp_path, scene, slice(4, 8))
+
+
+def _seeds_centres(tmp_path, scene: dict, centre: slice) -> list:
+    """The mean of the pixels [centre, centre] of pbl renders of scene with seeds 0, 1 and 2."""
     path = write_scene(tmp_path, scene)
     centres = []
     for seed in range(3):
         render_scene(path, tmp_path / "o.exr", RenderOptions(method="pbl", seed=seed, cache_dir=tmp_path,
                                                              quiet=True))
-        centres.append(float(read_exr(tmp_path / "o.exr")[0][4:8, 4:8].mean()))
+        centres.append(float(read_exr(tmp_path / "o.exr")[0][centre, centre].mean()))
     return centres
 
 
@@ -188,11 +193,6 @@ def test_index_matched_slab_furnace(tmp_path):
              "medium": {"albedo": 1.0, "mean_free_path": 0.05, "g": 0.0}}
     scene = {"camera": camera((16, 16), position=(0.0, 3.0, 0.3), fov=8), "render": {"spp": 8},
              "lights": [{"type": "environment", "radiance": 1.0}], "shapes": [shape]}
-    path = write_scene(tmp_path, scene)
-    centres = []
-    for seed in range(3):
-        render_scene(path, tmp_path / "o.exr", RenderOptions(method="pbl", seed=seed, cache_dir=tmp_path,
-                                                             quiet=True))
-        centres.append(float(read_exr(tmp_path / "o.exr")[0][5:11, 5:11].mean()))
+    centres = _seeds_centres(tmp_path, scene, slice(5, 11))
     print("index-matched slab furnace, centre:", centres)
     assert abs(np.mean(centres) - 1.0) < 0.05, centres
