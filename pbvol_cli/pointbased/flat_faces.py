@@ -53,14 +53,12 @@ def flat_faces(bs: BuiltScene, m: int, transport_mfp: float) -> np.ndarray:
     q = np.einsum("ij,ij->i", n, v0)
     tol = 4.0 * bs.eps + 1e-9 * bs.extent
     key = np.column_stack([np.round(n * 1e5), np.round(q / tol)]).astype(np.int64)
-    _, group = np.unique(key, axis=0, return_inverse=True)
+    _, first, group = np.unique(key, axis=0, return_index=True, return_inverse=True)
     group = group.ravel()
     total = np.bincount(group, weights=area)
     keep = np.flatnonzero(np.sqrt(total / np.pi) >= FLAT_MIN_RADIUS * transport_mfp)
     out = np.zeros((len(keep), FACE_COLS))
-    for row, gi in enumerate(keep):
-        sel = group == gi
-        out[row, :3] = n[sel][0]
-        out[row, 3] = float(np.average(q[sel], weights=area[sel]))
-        out[row, 4] = tol
+    out[:, :3] = n[first[keep]]
+    out[:, 3] = np.bincount(group, weights=area * q)[keep] / total[keep]  # the area-weighted plane offset
+    out[:, 4] = tol
     return out
