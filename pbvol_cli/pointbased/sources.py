@@ -28,6 +28,8 @@ Source.__doc__ = """A point source: position, unit direction of its beam, scatte
 the ball its double scattering is smeared over (scene units)."""
 
 IMAGE_EXTRAPOLATION = 0.25  # transport mean free paths by which the image planes lie beyond the boundary
+NEAR_READ_TRANSPORT = 1.0  # the multiple term reads the table no nearer a source than its extent, and that at most
+# this many transport mean free paths of the densest channel (source_terms)
 FLAT_FACE_EXTRAPOLATION = 0.4  # the same under a flat face of the boundary (flat_faces.py): the slab's furnace
 # read multiple / 3+ 0.81 at 0.25 and 1.04 at 0.5, and the milk glass was dark next to its faces (docs/pbl.md)
 NEAR_SUB = 8  # sub-points along a segment that is close to P (double scattering)
@@ -118,9 +120,15 @@ def source_terms(src, plane, med, q, rclamp, do_double, do_multiple, tabs, split
         # the table read no nearer the source than its extent, as double scattering's ball: a sample stands for
         # light spread over its kernel, and its table value a hundredth of a mean free path away was a rare spike
         # of hundreds of times the mean (the milk's tails, docs/pbl.md)
-        cm = max(rclamp, src.extent)
+        cm = src.extent
         if qn < np.inf:
-            cm = max(rclamp, min(src.extent, max(qn - (nx * x + ny * y + nz * z), 0.5 * src.extent)))
+            cm = min(src.extent, max(qn - (nx * x + ny * y + nz * z), 0.5 * src.extent))
+        # and no farther than a transport mean free path: a beam many mean free paths wide read the table at its
+        # radius lost the light that diffuses within it (a box 1000 mean free paths thick: multiple 0.02 of 3+)
+        st_t = 0.0  # (the densest channel's sigma_t')
+        for c in range(3):
+            st_t = max(st_t, sig_a[c] + transport_share(kind, g) * sig_s[c])
+        cm = max(rclamp, min(cm, NEAR_READ_TRANSPORT / max(st_t, 1e-30)))
         sx, sy, sz = rx, ry, rz
         if r < cm:
             if r > 0.0:
