@@ -65,6 +65,22 @@ def on_flat_face(faces, nx, ny, nz, q):
     return False
 
 
+@njit(inline="always", cache=True)
+def near_radius(src, depth, med, rclamp):
+    """The radius (scene units) over which a source's light counts as spread: double scattering averages its 1/r^2
+    over a ball of it, and the multiple term reads the table no nearer. The source's extent, shrunk toward its
+    boundary plane to its depth there (depth, inf: no plane) but not below half the extent (a ball poking out of the
+    medium puts light where no camera point gathers it; shrunk further, the bounced layer's gather on the boundary
+    met spikes); at most NEAR_READ_TRANSPORT transport mean free paths of the densest channel (a beam many mean
+    free paths wide, read at its radius, lost the light that diffuses within it: a box 1000 mean free paths thick
+    read multiple 0.02 of 3+); at least rclamp."""
+    c = src.extent if depth == np.inf else min(src.extent, max(depth, 0.5 * src.extent))
+    st_t = 0.0  # (the densest channel's sigma_t')
+    for k in range(3):
+        st_t = max(st_t, med.sigma_a[k] + transport_share(med.phase, med.g) * med.sigma_s[k])
+    return max(rclamp, min(c, NEAR_READ_TRANSPORT / max(st_t, 1e-30)))
+
+
 @njit(cache=True)
 def source_terms(src, plane, med, q, rclamp, do_double, do_multiple, tabs, split, out_d, out_m):
     """Double (into out_d) and multiple (into out_m) scattering at q (Query) from src (Source) in med (Medium).
@@ -88,10 +104,9 @@ def source_terms(src, plane, med, q, rclamp, do_double, do_multiple, tabs, split
     r2 = rx * rx + ry * ry + rz * rz
     r = math.sqrt(r2)
     part = near_weight(r, split) if do_double else 0.0
+    near = near_radius(src, qn - (nx * x + ny * y + nz * z) if qn < np.inf else np.inf, med, rclamp)
     if part > 0.0 and r > 0.0:
-        c = max(rclamp, src.extent)
-        if qn < np.inf:
-            c = max(rclamp, min(src.extent, max(qn - (nx * x + ny * y + nz * z), 0.5 * src.extent)))
+        c = near
         mx, my, mz = rx / r, ry / r, rz / r
         lobe = phase_eval(kind, g, dx * mx + dy * my + dz * mz)
         f = phase_eval(kind, g, mx * wx + my * wy + mz * wz) * lobe * part
@@ -120,15 +135,7 @@ def source_terms(src, plane, med, q, rclamp, do_double, do_multiple, tabs, split
         # the table read no nearer the source than its extent, as double scattering's ball: a sample stands for
         # light spread over its kernel, and its table value a hundredth of a mean free path away was a rare spike
         # of hundreds of times the mean (the milk's tails, docs/pbl.md)
-        cm = src.extent
-        if qn < np.inf:
-            cm = min(src.extent, max(qn - (nx * x + ny * y + nz * z), 0.5 * src.extent))
-        # and no farther than a transport mean free path: a beam many mean free paths wide read the table at its
-        # radius lost the light that diffuses within it (a box 1000 mean free paths thick: multiple 0.02 of 3+)
-        st_t = 0.0  # (the densest channel's sigma_t')
-        for c in range(3):
-            st_t = max(st_t, sig_a[c] + transport_share(kind, g) * sig_s[c])
-        cm = max(rclamp, min(cm, NEAR_READ_TRANSPORT / max(st_t, 1e-30)))
+        cm = near
         sx, sy, sz = rx, ry, rz
         if r < cm:
             if r > 0.0:

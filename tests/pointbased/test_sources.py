@@ -5,6 +5,8 @@ import pytest
 
 from pbvol_cli.multiple_scattering.layout import Layout
 from pbvol_cli.multiple_scattering.table import TableSettings, build_table, scaled_lookup
+from pbvol_cli.physics.phase import phase_eval
+from pbvol_cli.pointbased.inverse_square import attenuated_inv_r2_ball
 from pbvol_cli.pointbased.sources import (FLAT_FACE_EXTRAPOLATION, IMAGE_EXTRAPOLATION, NEAR_READ_TRANSPORT, Source,
                                           on_flat_face, source_terms)
 from pbvol_cli.pointbased.volume_samples import FACE_COLS, NO_PLANE, Medium, Query
@@ -141,8 +143,10 @@ def test_multiple_term_reads_the_table_no_nearer_than_the_sources_extent():
 
 def test_a_wide_source_is_read_no_farther_than_a_transport_mean_free_path():
     """A source much wider than a transport mean free path (a beam 40 mean free paths wide in a dense body) is read
-    no farther out than NEAR_READ_TRANSPORT transport mean free paths of the densest channel: read at its extent,
-    the light that diffuses within it was lost (a box 1000 mean free paths thick: multiple 0.02 of volpath's 3+)."""
+    no farther out than NEAR_READ_TRANSPORT transport mean free paths of the densest channel, and its double
+    scattering averaged over a ball no wider: at its extent the light that diffuses within it was lost and the
+    ball poked out of the body (a box 1000 mean free paths thick: multiple 0.02 of volpath's 3+, double 0.15 of
+    order 2)."""
     lay = Layout(extent=10.0, n_rho=16, n_z=32, n_theta=9, n_phi=9, kill_radius=20.0)
     table, _ = build_table(0.9, 0.7, 1, TableSettings(particles=40000, layout=lay, sh_order=8))
     tab = table.render_args()
@@ -152,12 +156,15 @@ def test_a_wide_source_is_read_no_farther_than_a_transport_mean_free_path():
     d, w = np.array([0.0, 0.6, 0.8]), np.array([0.6, 0.0, 0.8])
     u = np.array([2.0, -1.0, 2.0]) / 3.0
     no_plane = np.array([0.0, 0.0, 1.0, np.inf] * 2)
-    out_m = np.zeros(3)
+    out_d, out_m = np.zeros(3), np.zeros(3)
     source_terms(Source(0.0, 0.0, 0.0, *d, 1.0, 1.0, 1.0, 10.0), no_plane, med, Query(*(0.1 * u), *w, NO_PLANE),
-                 0.02, False, True, (tab,) * 3, 0.0, np.zeros(3), out_m)
+                 0.02, True, True, (tab,) * 3, 0.0, out_d, out_m)
+    phases = phase_eval(1, 0.7, float(u @ w)) * phase_eval(1, 0.7, float(u @ d))
     for c, st in enumerate(0.1 + med.sigma_s):
         expected = scaled_lookup(tab, 1.0, st, *(cap * u), *d, *w)
         assert expected > 0 and out_m[c] == pytest.approx(expected, rel=1e-12), (c, out_m, expected)
+        double = med.sigma_s[c] * phases * attenuated_inv_r2_ball(0.1, cap, st)
+        assert out_d[c] == pytest.approx(double, rel=1e-12), (c, out_d, double)
 
 
 def test_images_in_a_flat_face_lie_farther_out():
