@@ -17,6 +17,7 @@ from pbvol_cli.pointbased.sources import transport_share
 from pbvol_cli.pointbased.volume_samples import FACE_COLS, NO_FACES, medium_params
 
 FLAT_MIN_RADIUS = 1.0  # transport mean free paths: the least radius of the disc of a face's area that counts as flat
+MAX_FACES = 16  # the largest faces kept: the multiple term tests each plane against every face at every look-up
 
 
 def medium_faces(bs: BuiltScene, m: int) -> np.ndarray:
@@ -30,7 +31,7 @@ def medium_faces(bs: BuiltScene, m: int) -> np.ndarray:
 def flat_faces(bs: BuiltScene, m: int, transport_mfp: float) -> np.ndarray:
     """(k, FACE_COLS) the flat faces bounding medium m: coplanar triangles of flat shading on surfaces with m on a
     side, grouped by plane, kept where their area's disc radius sqrt(A / pi) is at least FLAT_MIN_RADIUS
-    transport_mfp (scene units). Analytic spheres have none."""
+    transport_mfp (scene units), the MAX_FACES largest first. Analytic spheres have none."""
     if len(bs.faces) == 0:
         return NO_FACES
     sides = (bs.surfaces[:, SURF_MEDIUM_IN] == m) | (bs.surfaces[:, SURF_MEDIUM_OUT] == m)
@@ -57,6 +58,7 @@ def flat_faces(bs: BuiltScene, m: int, transport_mfp: float) -> np.ndarray:
     group = group.ravel()
     total = np.bincount(group, weights=area)
     keep = np.flatnonzero(np.sqrt(total / np.pi) >= FLAT_MIN_RADIUS * transport_mfp)
+    keep = keep[np.argsort(-total[keep], kind="stable")[:MAX_FACES]]
     out = np.zeros((len(keep), FACE_COLS))
     out[:, :3] = n[first[keep]]
     out[:, 3] = np.bincount(group, weights=area * q)[keep] / total[keep]  # the area-weighted plane offset

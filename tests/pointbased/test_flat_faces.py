@@ -43,3 +43,15 @@ def test_a_box_has_six_faces_a_sphere_none_and_small_faces_do_not_count(tmp_path
     assert len(flat_faces(box, 0, 2.26 / FLAT_MIN_RADIUS + 0.01)) == 0
     sphere = _built(tmp_path, [{"type": "sphere", "radius": 3.0, "medium": MEDIUM, "interface": "null"}])
     assert len(medium_faces(sphere, 0)) == 0
+
+
+def test_only_the_largest_faces_are_kept(tmp_path, monkeypatch):
+    """At most MAX_FACES faces, the largest first: every look-up of the multiple term tests its planes against each."""
+    import pbvol_cli.pointbased.flat_faces as flat
+
+    box = _built(tmp_path, [{"type": "box", "size": [4.0, 1.0, 4.0], "medium": MEDIUM, "interface": "null"}])
+    assert len(flat.flat_faces(box, 0, 0.5)) == 6
+    monkeypatch.setattr(flat, "MAX_FACES", 2)
+    faces = flat.flat_faces(box, 0, 0.5)
+    assert len(faces) == 2
+    np.testing.assert_allclose(np.abs(faces[:, 1]), 1.0)  # the 4 x 4 faces, normal along y
