@@ -9,7 +9,7 @@ each as two halves with different seeds (kept in the cache). Printed per compone
 bias that survives averaging) and the relMSE of pbl against the volpath mean, next to the relMSE of the
 reference's own noise (a quarter of its halves' relMSE against each other) and the ratio of the halves' means
 (a reference whose halves differ by more than a few % is not converged: its order's paths are heavy-tailed).
-With --bands N, the same ratios for single, multiple (alone and with bounced) and bounced over N bands of image
+With --bands N, the same ratios for single, double, multiple (alone and with bounced) and bounced over N bands of image
 rows, where order 3+ is at least 5 % of its brightest pixel: where in the image a bias sits (a boundary, a face).
 A scene is a config name in configs/ or a scene file (benchmarks/scenes/ holds scenes that isolate one effect).
 Light that scattered in the medium, left it and came back from the scene (a table) is in pbl's bounced layer (the
@@ -101,7 +101,8 @@ def print_bands(layers, refs, bands: int):
     if len(rows) == 0:
         return
     bounced = layers.get("bounced", np.zeros_like(layers["single"]))
-    pairs = [("single / 1", layers["single"], "1"), ("multiple / 3+", layers["multiple"], "3+"),
+    pairs = [("single / 1", layers["single"], "1"), ("double / 2", layers["double"], "2"),
+             ("multiple / 3+", layers["multiple"], "3+"),
              ("bounced / 3+", bounced, "3+"), ("mult+bounced / 3+", layers["multiple"] + bounced, "3+")]
     print(f"  {'rows':<9} {'share of 3+':>11} " + " ".join(f"{p[0]:>17}" for p in pairs))
     total = sky[mask].sum()
