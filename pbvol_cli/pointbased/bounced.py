@@ -39,7 +39,7 @@ from pbvol_cli.physics.fresnel import fresnel_dielectric
 from pbvol_cli.physics.sampling import cosine_around, rand, seed_state
 from pbvol_cli.pointbased.beams import Beams, beam_segments, layer_reflectance, slab_reflectance
 from pbvol_cli.pointbased.gather import eval_segments, segment_planes
-from pbvol_cli.pointbased.surface_samples import SHARING_RADIUS, poisson_disk, share_among_neighbours
+from pbvol_cli.pointbased.surface_samples import BOUNDARY_STREAM, SHARING_RADIUS, poisson_disk, share_among_neighbours
 from pbvol_cli.pointbased.volume_samples import SAMPLE_KEYS, scattered_share
 from pbvol_cli.render.interfaces import indices
 
@@ -51,18 +51,21 @@ MIN_SHARE = 0.01  # generations stop once one scatters less than this share of t
 TAIL_RATIO_MAX = 0.9  # generation-to-generation ratio the tail is extrapolated with at most
 
 
-def boundary_points(bs: BuiltScene, medium: int, count: int, seed: int):
-    """About `count` blue-noise points on the surfaces bounding `medium`. Returns (positions, inward normals,
-    surface ids, area per point (scene units^2), the points' minimum distance); empty when no dielectric surface
-    bounds it."""
+def boundary_points(bs: BuiltScene, medium: int, count: int, seed: int, generation: int = 0):
+    """About `count` blue-noise points on the surfaces bounding `medium`, a set of its own for each generation.
+    Returns (positions, inward normals, surface ids, area per point (scene units^2), the points' minimum distance);
+    empty when no dielectric surface bounds it."""
     surf = bs.surfaces
     ids = np.flatnonzero(bs.surfaces_bounding(medium) & (surf[:, SURF_TYPE] == DIELECTRIC)).astype(np.int64)
     if len(ids) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64), 0.0, 0.0
     tri = np.isin(bs.tri_surface, ids)
     sph = bs.spheres[np.isin(bs.spheres[:, SPH_SURFACE].astype(np.int64), ids)]
+    # streams apart from the light samples' and from the generation before, whose beams leave from its points: on
+    # one stream each point gathered beside a beam's entry, and a dense body's arriving light read 14x too high
     pos, nrm, sid, area, radius = poisson_disk(bs.vertices, bs.faces[tri], bs.tri_normals[tri],
-                                               bs.tri_surface[tri], sph, count, seed)
+                                               bs.tri_surface[tri], sph, count, seed, 8,
+                                               BOUNDARY_STREAM + generation)
     inward = np.where((surf[sid, SURF_MEDIUM_IN] == medium)[:, None], -nrm, nrm)  # normals point to the exterior
     return pos, inward, sid, area, radius
 
@@ -129,13 +132,13 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
     make_set(samples) builds one from a namespace of v_* arrays; settings: the gather rays' GatherSettings.
     Returns the union of the generations as such a namespace, or None when the boundary reflects nothing."""
     med = source.medium  # (with the flat faces of its boundary)
-    pos, nin, sid, area, spacing = boundary_points(bs, medium, count, seed)
-    n = len(pos)
-    if n == 0:
-        return None
     gens, emitted, robust = [], [], []
     data = source
     for g in range(generations):
+        pos, nin, sid, area, spacing = boundary_points(bs, medium, count, seed, g)
+        n = len(pos)
+        if n == 0:
+            return None
         w, rng = np.zeros((n, 3)), np.zeros(n, np.uint64)
         _gather_directions(nin, seed, 0xB0 + 4 * g, w, rng)
         t, _, ng, _ = closest_surface_hits(caster, bs, pos + bs.eps * nin, w)

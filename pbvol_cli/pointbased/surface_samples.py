@@ -19,11 +19,17 @@ SLOTS = 8  # a cube of side r holds at most 8 points at mutual distance >= r
 SHARING_RADIUS = 2.5  # share_among_neighbours's radius, in the samples' minimum distances
 
 
+LIGHT_SAMPLE_STREAM = 0xB1  # the light samples' surface points (light_samples.py)
+BOUNDARY_STREAM = 0xB200  # the bounced light's boundary points (bounced.py), + its generation: with the light
+# samples' stream they were the same points wherever the medium's boundary is the outer layer (docs/pbl.md)
+
+
 @njit(cache=True)
-def _candidates(V, F, tri_normals, cum_area, spheres, sphere_cum, n, seed, pos, nrm, surf_idx, tri_surface):
-    """n candidates, area-weighted over triangles (cum_area) then spheres (sphere_cum, continuing the sums)."""
+def _candidates(V, F, tri_normals, cum_area, spheres, sphere_cum, n, seed, stream, pos, nrm, surf_idx, tri_surface):
+    """n candidates, area-weighted over triangles (cum_area) then spheres (sphere_cum, continuing the sums), from
+    the random stream (seed, stream)."""
     st = np.empty(1, np.uint64)
-    st[0] = seed_state(seed, 0xB1, 0)
+    st[0] = seed_state(seed, stream, 0)
     total = sphere_cum[-1] if sphere_cum.shape[0] > 0 else cum_area[-1]
     ntri = cum_area.shape[0]
     for k in range(n):
@@ -90,8 +96,11 @@ def _dart_throw(pos, radius, lo, dims, keep):
     return count
 
 
-def poisson_disk(V, F, tri_normals, tri_surface, spheres, target: int, seed: int, oversample: int = 8):
-    """About `target` blue-noise samples on the given triangles and analytic spheres.
+def poisson_disk(V, F, tri_normals, tri_surface, spheres, target: int, seed: int, oversample: int = 8,
+                 stream: int = LIGHT_SAMPLE_STREAM):
+    """About `target` blue-noise samples on the given triangles and analytic spheres, from the random stream
+    (seed, stream): point sets of one surface that must not coincide (the light samples and the bounced light's
+    boundary points) take different streams.
 
     Returns (positions (n,3), normals (n,3) pointing to the exterior, surface ids (n,), area per sample, radius).
     The radius is chosen so that dart throwing saturates near the target (random close packing of disks covers
@@ -116,7 +125,8 @@ def poisson_disk(V, F, tri_normals, tri_surface, spheres, target: int, seed: int
     pos, nrm = np.zeros((n, 3)), np.zeros((n, 3))
     sid = np.zeros(n, np.int64)
     _candidates(V, F, np.asarray(tri_normals, np.float64).reshape(-1, 3, 3) if len(F) else np.zeros((0, 3, 3)),
-                cum if len(cum) else np.zeros(0), sph, sph_cum if len(sph) else np.zeros(0), n, seed, pos, nrm, sid,
+                cum if len(cum) else np.zeros(0), sph, sph_cum if len(sph) else np.zeros(0), n, seed, stream, pos, nrm,
+                sid,
                 np.asarray(tri_surface, np.int64) if len(F) else np.zeros(0, np.int64))
     lo = pos.min(0) - radius
     dims = np.maximum(np.ceil((pos.max(0) + radius - lo) / radius).astype(np.int64), 1)
