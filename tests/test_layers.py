@@ -8,7 +8,7 @@ from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "pbvol_cli"
 LAYERS = [
-    {"__version__", "errors", "jit"},
+    {"__version__", "errors", "jit", "kernel_cache"},
     {"config", "config_reference", "imageio"},
     {"physics"},
     {"geometry"},

@@ -11,6 +11,7 @@ import numpy as np
 
 from pbvol_cli import config as C
 from pbvol_cli.errors import PbvolError
+from pbvol_cli.kernel_cache import package_stamp
 from pbvol_cli.pipeline.cache import cached_entry, key_of
 
 # 2: indirect diffuse light at the surface samples; 3: boundary planes; 4: glass walls reflect; 5-7: roulette on
@@ -97,7 +98,8 @@ def get_light_samples(built, pbl: C.PblSettings, seed: int, cache: Path, threads
     return SamplesResult(samples, path, reused, time.perf_counter() - t0)
 
 
-# 1: the boundary's reflections of pass 0's scattered light (pointbased/passes._reflected); bump when they change
+# 1: the boundary's reflections of pass 0's scattered light (pointbased/passes._reflected); bump when the entry's
+# arrays change (the entries are keyed by the package's sources as well)
 BOUNCED_FORMAT_VERSION = 1
 
 
@@ -132,13 +134,16 @@ class BouncedEntry:
 def bounced_cache(cache: Path, samples: Path, pbl: C.PblSettings, table_names: dict):
     """first_bounced for pointbased/passes.render_passes: pass 0's reflected bounced samples of medium m from the
     cache, or built and stored. Keyed by the light samples' entry (geometry, lights, media, seed), the settings
-    the reflections depend on and the medium's tables (table_names[m]: their entries' file names)."""
+    the reflections depend on, the medium's tables (table_names[m]: their entries' file names) and the package's
+    sources: the reflections go through every estimator, and a change to any of them (images, kernels, the gather's
+    points) left the first pass rendering a stale set while the later passes' sets were new. A set costs well under
+    a pass to build again."""
     def first_bounced(m: int, build):
         key = key_of(kind="bounced-samples", samples=samples.name, medium=m, tables=table_names.get(m),
                      bounce_samples=pbl.bounce_samples, generations=pbl.bounce_generations,
                      segments=pbl.segments_per_beam, reflections=pbl.max_internal_reflections,
                      cut_size=pbl.cut_size, clamp=pbl.clamp, beam_width=pbl.beam_width,
-                     version=BOUNCED_FORMAT_VERSION)
+                     version=BOUNCED_FORMAT_VERSION, sources=package_stamp())
         entry, _ = cached_entry(Path(cache) / "samples" / f"bounced_{key}.npz", ("absent",), BouncedEntry.from_arrays,
                                 lambda: BouncedEntry(build()))
         return entry.samples

@@ -88,3 +88,23 @@ def test_pass_zeros_bounced_samples_are_cached_and_give_the_same_image(tmp_path)
                             "pbl", "-q", "--threads", "2", "--cache-dir", str(cache), "--components", "bounced"])
     assert r.exit_code == 0, r.output
     assert read_exr(tmp_path / "d.exr")[0].mean() > 1.2 * images[0].mean()
+
+
+def test_a_change_to_the_package_builds_pass_zeros_bounced_samples_again(tmp_path, monkeypatch):
+    """The bounced samples go through every estimator: an entry made by other sources of the package (an edit, a
+    pull, an upgrade) is not reused, however the settings match."""
+    import pbvol_cli.pipeline.samples as samples
+
+    scene = {"camera": {"position": [0, 0, 4], "look_at": [0, 0, 0], "fov": 40, "resolution": [6, 6]},
+             "render": {"spp": 1, "lut": {"particles": 2000},
+                        "pbl": {"surface_samples": 300, "segments_per_beam": 4, "bounce_samples": 64}},
+             "lights": [{"type": "directional", "direction": [0, -1, -0.5], "irradiance": 2.0}],
+             "shapes": [{"type": "sphere", "radius": 1.0, "interface": "dielectric", "eta": 1.3,
+                         "medium": {"albedo": 0.95, "mean_free_path": 0.2, "g": 0.3}}]}
+    path, cache = write_scene(tmp_path, scene), tmp_path / "cache"
+    for stamp in ("sources-a", "sources-a", "sources-b"):
+        monkeypatch.setattr(samples, "package_stamp", lambda stamp=stamp: stamp)
+        r = runner.invoke(app, ["render", str(path), "-o", str(tmp_path / "o.exr"), "--method", "pbl", "-q",
+                                "--threads", "2", "--cache-dir", str(cache), "--components", "bounced"])
+        assert r.exit_code == 0, r.output
+    assert len(list((cache / "samples").glob("bounced_*.npz"))) == 2
