@@ -204,8 +204,6 @@ SURFACE_CHUNK = 1 << 15  # surface-only camera paths traced together: they share
 # and a 512 x 512 pass on the wine glass under the sky peaked in their batches: 944-948 MiB at 2^16, 865-867 at
 # 2^15, the same image and time (docs/pbl.md, memory)
 PILOT_FIRST_SAMPLE = 1 << 40  # the pilot's sample indices (pilot_paths): past any a pass uses, its streams apart
-PILOT_BLOCK = 2  # a pilot's variances pooled over tiles of this many pixels square: two paths a pixel then measure
-# as well as eight did pixel by pixel, at a quarter of their cost (docs/pbl.md, section 9)
 AUTO_MAX_PATHS = 128  # the mean over the pixels, at most
 AUTO_MAX_PIXEL_PATHS = 1024  # one pixel's, at most (a small light's mirror image on glass wants hundreds)
 PASS_COST_RATIO = 20.0  # a pass's medium work in surface paths per pixel (docs/pbl.md). The optimum is flat in it
@@ -559,20 +557,8 @@ def _pilot(bs, caster, pool, threads, seed: int, npix: int, width: int, pbl, set
         add_rows(total_sq, pixels[part], light * light)
     mean = total / per
     var = np.maximum(total_sq - total * mean, 0.0) / max(per - 1, 1)
-    relative = pooled_blocks((var / (mean ** 2 + 1e-2)).mean(axis=1), width)
+    relative = (var / (mean ** 2 + 1e-2)).mean(axis=1)
     return Pilot(pilot_surface_paths(relative, width), relative, mean)
-
-
-def pooled_blocks(values: np.ndarray, width: int, block: int = PILOT_BLOCK) -> np.ndarray:
-    """Each pixel's value (npix,) replaced by the mean over its block x block tile of pixels (the last row and column
-    of tiles cut short where the image is not a multiple): a pilot's per-pixel variances, each from a few paths,
-    pooled into one estimate of block^2 times the degrees of freedom (docs/pbl.md, section 9)."""
-    img = np.asarray(values, float).reshape(-1, width)
-    h, w = img.shape
-    ty, tx = np.arange(h) // block, np.arange(w) // block
-    tile = (ty[:, None] * ((w + block - 1) // block) + tx[None, :]).ravel()
-    sums = np.bincount(tile, weights=img.ravel())
-    return (sums / np.bincount(tile))[tile]
 
 
 def first_path_indices(surface_paths: int, first_pass: int, npix: int) -> tuple[int, int]:

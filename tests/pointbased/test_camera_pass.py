@@ -10,8 +10,7 @@ from pbvol_cli.imageio import read_exr, read_layers
 from pbvol_cli.pipeline.render import RenderOptions, render_scene
 from pbvol_cli.pointbased.camera_pass import (AUTO_FIRST_PATHS, AUTO_MAX_PATHS, DIFFUSE_COST, DIFFUSE_SHARE_MIN,
                                               PASS_COST_RATIO, DiffuseShare, PixelStatistics, add_rows,
-                                              auto_surface_paths, diffuse_share, pass_paths, pilot_surface_paths,
-                                              pooled_blocks)
+                                              auto_surface_paths, diffuse_share, pass_paths, pilot_surface_paths)
 
 
 @pytest.mark.parametrize("light", ["quad", "sphere"])
@@ -139,20 +138,6 @@ def test_pilot_paths_keep_the_mean_count_and_follow_the_square_root_of_the_noise
     assert 8 * far <= k[210] - 1 <= 12 * far, (k[210], k[0])
     assert k[209] > k[0] and k[231] > k[0]  # its neighbours (10, 9) and (11, 11)
     assert np.array_equal(pilot_surface_paths(np.zeros(400), 20), np.full(400, AUTO_FIRST_PATHS))
-
-
-def test_a_pilots_variances_are_pooled_over_tiles_of_two_by_two_pixels():
-    """pooled_blocks: each pixel takes its 2 x 2 tile's mean, the tiles of an odd last row and column cut short, so
-    a rare hit seen by one pixel's few paths counts for the tile it lies in and for no other."""
-    img = np.zeros((3, 5))
-    img[0, 1] = 4.0  # tile (0, 0)
-    img[2, 4] = 3.0  # the corner tile, one pixel
-    img[1, 3] = 2.0  # tile (0, 1)
-    out = pooled_blocks(img.ravel(), 5).reshape(3, 5)
-    expected = np.array([[1.0, 1.0, 0.5, 0.5, 0.0],
-                         [1.0, 1.0, 0.5, 0.5, 0.0],
-                         [0.0, 0.0, 0.0, 0.0, 3.0]])
-    assert np.array_equal(out, expected)
 
 
 def test_pixel_statistics_measure_the_variances_and_give_noisy_pixels_more_paths():
