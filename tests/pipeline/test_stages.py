@@ -55,15 +55,20 @@ def test_stages_cache_what_a_delta_eddington_render_reads(tmp_path):
     assert len(tables) == 3 and sorted(p.name for p in (tmp_path / "c" / "lut").glob("*.npz")) == tables
 
 
+def _reflecting_sphere(resolution: int) -> dict:
+    """A small medium sphere behind eta 1.3 whose boundary reflects scattered light (bounced samples), cheap."""
+    return {"camera": {"position": [0, 0, 4], "look_at": [0, 0, 0], "fov": 40, "resolution": [resolution] * 2},
+            "render": {"spp": 1, "lut": {"particles": 2000},
+                       "pbl": {"surface_samples": 300, "segments_per_beam": 4, "bounce_samples": 64}},
+            "lights": [{"type": "directional", "direction": [0, -1, -0.5], "irradiance": 2.0}],
+            "shapes": [{"type": "sphere", "radius": 1.0, "interface": "dielectric", "eta": 1.3,
+                        "medium": {"albedo": 0.95, "mean_free_path": 0.2, "g": 0.3}}]}
+
+
 def test_pass_zeros_bounced_samples_are_cached_and_give_the_same_image(tmp_path):
     """A pbl render stores pass 0's reflected bounced samples; the next render reuses them (the same pixels, bit
     for bit); a setting they depend on makes a new entry."""
-    scene = {"camera": {"position": [0, 0, 4], "look_at": [0, 0, 0], "fov": 40, "resolution": [10, 10]},
-             "render": {"spp": 1, "lut": {"particles": 2000},
-                        "pbl": {"surface_samples": 300, "segments_per_beam": 4, "bounce_samples": 64}},
-             "lights": [{"type": "directional", "direction": [0, -1, -0.5], "irradiance": 2.0}],
-             "shapes": [{"type": "sphere", "radius": 1.0, "interface": "dielectric", "eta": 1.3,
-                         "medium": {"albedo": 0.95, "mean_free_path": 0.2, "g": 0.3}}]}
+    scene = _reflecting_sphere(10)
     cache = tmp_path / "cache"
     images = []
     for name, bounce_samples in (("a", 64), ("b", 64), ("c", 48)):
@@ -95,13 +100,7 @@ def test_a_change_to_the_package_builds_pass_zeros_bounced_samples_again(tmp_pat
     pull, an upgrade) is not reused, however the settings match."""
     import pbvol_cli.pipeline.samples as samples
 
-    scene = {"camera": {"position": [0, 0, 4], "look_at": [0, 0, 0], "fov": 40, "resolution": [6, 6]},
-             "render": {"spp": 1, "lut": {"particles": 2000},
-                        "pbl": {"surface_samples": 300, "segments_per_beam": 4, "bounce_samples": 64}},
-             "lights": [{"type": "directional", "direction": [0, -1, -0.5], "irradiance": 2.0}],
-             "shapes": [{"type": "sphere", "radius": 1.0, "interface": "dielectric", "eta": 1.3,
-                         "medium": {"albedo": 0.95, "mean_free_path": 0.2, "g": 0.3}}]}
-    path, cache = write_scene(tmp_path, scene), tmp_path / "cache"
+    path, cache = write_scene(tmp_path, _reflecting_sphere(6)), tmp_path / "cache"
     for stamp in ("sources-a", "sources-a", "sources-b"):
         monkeypatch.setattr(samples, "package_stamp", lambda stamp=stamp: stamp)
         r = runner.invoke(app, ["render", str(path), "-o", str(tmp_path / "o.exr"), "--method", "pbl", "-q",
