@@ -18,8 +18,9 @@ from pbvol_cli.pipeline.cache import cached_entry, key_of
 # weak reflections, planes beyond the boundary; 8: a light is not its own shadow blocker; 9: light guided by
 # reflections inside transparent layers; 11: indirect light
 # path traced (v_returned: light that scattered before it reached the sample); 12: volume samples in Morton order;
-# 13: each segment's leg (v_leg); 14: v_leg in 32 bits
-FORMAT_VERSION = 14
+# 13: each segment's leg (v_leg); 14: v_leg in 32 bits; 15: a beam's first sample starts on the boundary, its
+# power the one that crossed it
+FORMAT_VERSION = 15
 
 
 @dataclass

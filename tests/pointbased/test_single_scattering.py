@@ -7,7 +7,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
-from conftest import (SPHERE_G, SPHERE_LIGHT_DIR, SPHERE_SIGMA_A, SPHERE_SIGMA_S, build, medium_sphere_scene,
+from conftest import (SPHERE_G, SPHERE_LIGHT_DIR, SPHERE_SIGMA_A, SPHERE_SIGMA_S, build, camera, medium_sphere_scene,
                       random_volume_samples, single_scattering_reference, write_scene)
 from pbvol_cli.imageio import read_layers
 from pbvol_cli.multiple_scattering.table import empty_table
@@ -189,3 +189,35 @@ def test_legs_give_the_segments_sums(tmp_path):
     np.testing.assert_allclose(legs[::7], walk[::7], rtol=1e-12, atol=1e-15 * segments.max())
     with ThreadPoolExecutor(3) as pool:
         assert np.array_equal(single_scattering_by_samples(pool, 3, vs, med, pts, w), legs)
+
+
+def test_a_dense_slab_under_vertical_light_reads_the_closed_form_at_every_depth(tmp_path):
+    """A box whose mean free path is 10 ray offsets (eps), lit straight down through an index-matched top: S_1 just
+    below it is sigma_s / (4 pi) e^(-sigma_t z) exactly (isotropic phase, unit irradiance). The beams start eps
+    inside the boundary; their first samples start on it again, with the power that crossed it. Before, they
+    started at eps with that power and every depth read e^(sigma_t eps) = 1.105 too much (measured 1.10)."""
+    from pbvol_cli.pointbased.light_samples import place_light_samples
+    from pbvol_cli.pointbased.volume_samples import SampleSet, medium_params
+
+    probe = build(tmp_path, {"camera": camera((4, 4), position=(0, 6, 0.5), fov=30),
+                             "lights": [{"type": "directional", "direction": [0, -1, 0], "irradiance": 1.0}],
+                             "shapes": [{"type": "box", "size": [6.0, 1.0, 6.0], "interface": "null",
+                                         "medium": {"albedo": 0.9, "mean_free_path": 1.0}}]})
+    mfp = 10.0 * probe.eps
+    scene = {"camera": camera((4, 4), position=(0, 6, 0.5), fov=30),
+             "lights": [{"type": "directional", "direction": [0, -1, 0], "irradiance": 1.0}],
+             "shapes": [{"type": "box", "size": [6.0, 1.0, 6.0], "interface": "null",
+                         "medium": {"albedo": 0.9, "mean_free_path": mfp}}]}
+    bs = build(tmp_path, scene)
+    assert bs.eps == probe.eps
+    tables = tuple(empty_table().render_args() for _ in range(3))
+    vs = SampleSet(place_light_samples(bs, 4000, 8, 2, 8, 1), 0, bs.media, tables, 2.0).kernel
+    med = medium_params(bs.media, 0)
+    sigma_t = float(med.sigma_a[1] + med.sigma_s[1])
+    rng = np.random.default_rng(5)
+    for depth in (0.2, 1.0, 2.0):  # mean free paths below the top face (y = 0.5)
+        pts = np.column_stack([rng.uniform(-2, 2, 3000), np.full(3000, 0.5 - depth / sigma_t),
+                               rng.uniform(-2, 2, 3000)])
+        s1 = single_scattering_by_samples(None, 1, vs, med, pts, np.tile([0.0, 1.0, 0.0], (3000, 1)))[:, 1]
+        exact = med.sigma_s[1] / (4 * math.pi) * math.exp(-depth)
+        assert abs(s1.mean() / exact - 1) < 0.02, (depth, s1.mean() / exact)
