@@ -389,6 +389,9 @@ class PblSettings(Strict):
                                "slices cache_cell deep below the boundary, where the terms change fastest)")
     cache_directions: Int = Field(8, ge=1, le=64, description="direction bins per cube-map face for cache_cell "
                                   "(8: about 11 degrees wide)")
+    bounced_bins: Num = Field(1.0, ge=1, le=8, description="the bounced light's bins this many times the "
+                              "lights' in depth, width and direction: fewer evaluations and more blur, worth it where "
+                              "the bounced light is a small share of the image (the oil sphere: 2; docs/pbl.md)")
     term_shares: Bool = Field(True, description="a bin evaluates the lesser of double and multiple scattering (by "
                               "its second moment in the pass so far) at a random share of the bins, weighted by its "
                               "inverse: unbiased, less time for the same noise (docs/pbl.md); false: every bin both")

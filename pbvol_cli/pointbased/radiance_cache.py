@@ -80,9 +80,11 @@ class TermShares:
 
 
 def cache_settings(pbl, single: bool = False) -> CacheSettings:
-    """The sharing of a scene's [render.pbl] (config.PblSettings); single: for the bounced light."""
-    return CacheSettings(float(pbl.cache_cell), float(max(pbl.cache_lateral, pbl.cache_cell)),
-                         int(pbl.cache_directions), single)
+    """The sharing of a scene's [render.pbl] (config.PblSettings); single: for the bounced light, whose bins are
+    pbl.bounced_bins times coarser in depth, width and direction."""
+    f = float(pbl.bounced_bins) if single else 1.0
+    return CacheSettings(f * float(pbl.cache_cell), f * float(max(pbl.cache_lateral, pbl.cache_cell)),
+                         max(1, round(int(pbl.cache_directions) / f)), single)
 
 
 ScatteredPoints = namedtuple("ScatteredPoints", ["pos", "dir", "weight", "plane", "owner"])
