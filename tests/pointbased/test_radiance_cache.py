@@ -272,7 +272,7 @@ def test_the_bounced_lights_coarser_bins_blur_it_by_a_bounded_share(tmp_path):
     cache_settings(..., single=True)) on the test sphere made 4x denser (17 mean free paths across) behind eta 1.5:
     the bounced light's three terms along 1184 chords seen from the lit side, 32 runs each, shared against per
     point. The blur's mean square over the light's ((mean - per point)^2 less the two means' noise, over the
-    per-point mean^2) reads 0.026 +- 0.007 at 2 with 0.72 of the lights' bins' evaluations (0.008 +- 0.004 at 1,
+    per-point mean^2) reads 0.026 +- 0.007 at 2 with 0.71 of the lights' bins' evaluations (0.008 +- 0.004 at 1,
     the lights' bins) and 0.051 +- 0.006 at 8 (a few bins over the whole sphere), which the bound catches: a blur
     worth taking only where the bounced light is a small share of the image (the oil sphere's config)."""
     scene = medium_sphere_scene()
