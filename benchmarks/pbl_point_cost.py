@@ -59,7 +59,7 @@ def points_in_sphere(m: int, radius: float, rng):
 
 def main():
     from pbvol_cli.pointbased.gather import gather_settings
-    from pbvol_cli.pointbased.radiance_cache import ScatteredPoints, _evaluate
+    from pbvol_cli.pointbased.radiance_cache import ScatteredPoints, _evaluate, all_terms
     from pbvol_cli.pointbased.single_scattering import single_scattering_by_samples
     from pbvol_cli.pointbased.volume_samples import medium_params
 
@@ -90,7 +90,8 @@ def main():
             streams = np.arange(m, dtype=np.uint64) * np.uint64(2654435761) + np.uint64(1)
 
             def run(k=m):
-                _evaluate(reps[:k], pts, streams.copy(), med, sample_set.kernel, settings, single, values)
+                _evaluate(reps[:k], all_terms(settings, k), pts, streams.copy(), med, sample_set.kernel, settings,
+                          single, values)
         run(10)  # compile
         times = []
         for _ in range(5):

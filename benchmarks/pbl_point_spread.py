@@ -38,7 +38,7 @@ def main():
     from pbvol_cli.pipeline.render import RenderOptions, light_side
     from pbvol_cli.pointbased.gather import gather_settings
     from pbvol_cli.pointbased.passes import kernel_tables
-    from pbvol_cli.pointbased.radiance_cache import ScatteredPoints, _evaluate
+    from pbvol_cli.pointbased.radiance_cache import ScatteredPoints, _evaluate, all_terms
     from pbvol_cli.pointbased.volume_samples import SampleSet, medium_params
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -79,7 +79,8 @@ def main():
             for si in range(args.streams if term != "single" else 1):
                 out = np.zeros((m, 3, 3))
                 streams = np.arange(m, dtype=np.uint64) * np.uint64(2654435761) + np.uint64(1 + 7919 * si)
-                _evaluate(np.arange(m), pts, streams, med, kernel, settings, term == "single", out)
+                _evaluate(np.arange(m), all_terms(settings, m), pts, streams, med, kernel, settings, term == "single",
+                          out)
                 values[term][li, si] = out[:, layer].sum(axis=1)
             if term == "single":
                 values[term][li, 1:] = values[term][li, 0]

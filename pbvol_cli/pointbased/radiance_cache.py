@@ -45,6 +45,7 @@ SIZE_SHARE = 0.125  # bins at most this share of the medium's size wide: the lig
 
 
 TERM_SHARE_MIN = 0.125  # the least share of the bins at which a term is evaluated (its weight at most 8)
+TERM_DOUBLE, TERM_MULTIPLE = 1, 2  # a representative's terms (_evaluate): bit flags
 PILOT_SHARE = 0.125  # the share of a pass's first bins that evaluates both terms, to measure them
 
 
@@ -142,8 +143,9 @@ def scattered_points(idx, pos, dirs, beta, tseg, rng, med, k, planes, per_mfp: b
 
 
 @njit(nogil=True, cache=True)
-def _evaluate(reps, pts, rng, med, vs, settings, do_single, values):
-    """The terms at the points reps (indices into pts: ScatteredPoints) into values (len(reps), 3 layers, 3)."""
+def _evaluate(reps, terms, pts, rng, med, vs, settings, do_single, values):
+    """The terms at the points reps (indices into pts: ScatteredPoints) into values (len(reps), 3 layers, 3); terms
+    (len(reps),): which of double (TERM_DOUBLE) and multiple (TERM_MULTIPLE) scattering each evaluates."""
     o = np.zeros(3)
     o3 = np.zeros(3)
     pplane = np.empty(4)
@@ -157,11 +159,11 @@ def _evaluate(reps, pts, rng, med, vs, settings, do_single, values):
             single_scattering(vs, med, q, o)
             for c in range(3):
                 values[j, 0, c] = o[c]
-        if settings.double or settings.multiple:
+        dd, mm = (terms[j] & TERM_DOUBLE) != 0, (terms[j] & TERM_MULTIPLE) != 0
+        if dd or mm:
             o[:] = 0.0
             o3[:] = 0.0
-            double_multiple(vs, med, q, settings.cut_size, settings.clamp, settings.double, settings.multiple, o, o3,
-                            rng, pts.owner[r])
+            double_multiple(vs, med, q, settings.cut_size, settings.clamp, dd, mm, o, o3, rng, pts.owner[r])
             for c in range(3):
                 values[j, 1, c] = o[c]
                 values[j, 2, c] = o3[c]
@@ -268,35 +270,39 @@ def lateral_width(cache: CacheSettings, mfp: float, vs) -> float:
     return max(min(cache.lateral * mfp, SIZE_SHARE * vs.size), cache.cell * mfp)
 
 
-def _evaluate_on_threads(pool, threads, reps, pts, rng, med, vs, settings, do_single, values):
-    """_evaluate at reps into values, the representatives dealt to threads by segment (thread_parts)."""
-    if threads <= 1 or len(reps) < 64:
-        _evaluate(reps, pts, rng, med, vs, settings, do_single, values)
+def all_terms(settings, n: int) -> np.ndarray:
+    """The terms (_evaluate's) of n representatives that evaluate what settings (GatherSettings) ask."""
+    return np.full(n, TERM_DOUBLE * bool(settings.double) + TERM_MULTIPLE * bool(settings.multiple), np.int8)
+
+
+def _evaluate_on_threads(pool, threads, reps, terms, pts, rng, med, vs, settings, do_single, values):
+    """_evaluate at reps (with their terms) into values, the representatives dealt to threads by segment
+    (thread_parts): one call for all of a flush's bins, however their terms differ, so that no thread waits at a
+    group's end (a representative costs up to a millisecond: groups of a few dozen once ran on one thread)."""
+    if threads <= 1 or len(reps) < 2:
+        _evaluate(reps, terms, pts, rng, med, vs, settings, do_single, values)
         return
     parts = thread_parts(pts.owner[reps], threads)
     vals = [np.zeros((len(p), 3, 3)) for p in parts]
-    list(pool.map(lambda t: _evaluate(reps[parts[t]], pts, rng, med, vs, settings, do_single, vals[t]),
-                  range(threads)))
+    list(pool.map(lambda t: _evaluate(reps[parts[t]], terms[parts[t]], pts, rng, med, vs, settings, do_single,
+                                      vals[t]), range(threads)))
     for p, v in zip(parts, vals):
         values[p] = v
 
 
 def _evaluate_shares(pool, threads, reps, which, pts, rng, med, vs, settings, do_single, values, shares, bin_rng):
     """The bins `which` (indices into reps), each evaluating double with probability shares[0] and multiple with
-    shares[1] (bin_rng), the value weighted by the inverse: up to four groups of bins, into values."""
+    shares[1] (bin_rng), the value weighted by the inverse, into values."""
     q_d, q_m = shares
     u = bin_rng.random((len(which), 2))
-    keep_d, keep_m = u[:, 0] < q_d, u[:, 1] < q_m
-    for kd, km in ((True, True), (True, False), (False, True), (False, False)):
-        if not (kd or km or do_single):  # (neither term and no single scattering: nothing to evaluate)
-            continue
-        sel = which[(keep_d == kd) & (keep_m == km)]
-        part = np.zeros((len(sel), 3, 3))
-        _evaluate_on_threads(pool, threads, reps[sel], pts, rng, med, vs, settings._replace(double=kd, multiple=km),
-                             do_single, part)
-        part[:, 1] /= q_d
-        part[:, 2] /= q_m
-        values[sel] = part
+    terms = (TERM_DOUBLE * (u[:, 0] < q_d) + TERM_MULTIPLE * (u[:, 1] < q_m)).astype(np.int8)
+    some = (terms != 0) | do_single  # (neither term and no single scattering: nothing to evaluate)
+    sel, terms = which[some], terms[some]
+    part = np.zeros((len(sel), 3, 3))
+    _evaluate_on_threads(pool, threads, reps[sel], terms, pts, rng, med, vs, settings, do_single, part)
+    part[:, 1] /= q_d
+    part[:, 2] /= q_m
+    values[sel] = part
 
 
 def shared_terms(pool, threads, idx, pos, dirs, beta, tseg, rng, med, vs, settings, cache: CacheSettings, out,
@@ -342,13 +348,15 @@ def binned_terms(pool, threads, pts: ScatteredPoints, rng, med, vs, settings, ca
     do_single = bool(cache.single and settings.single)
     w_bin = np.stack([np.bincount(group, weights=pts.weight[:, c], minlength=nb) for c in range(3)], axis=1)
     if term_shares is None or not (settings.double and settings.multiple):
-        _evaluate_on_threads(pool, threads, reps, pts, rng, med, vs, settings, do_single, values)
+        _evaluate_on_threads(pool, threads, reps, all_terms(settings, len(reps)), pts, rng, med, vs, settings,
+                             do_single, values)
     else:
         rest = np.arange(len(reps))
         if not term_shares.measured():  # a pilot: a random share of the bins evaluates both terms
             pilot = np.sort(bin_rng.permutation(len(reps))[:max(1, math.ceil(PILOT_SHARE * len(reps)))])
             part = np.zeros((len(pilot), 3, 3))
-            _evaluate_on_threads(pool, threads, reps[pilot], pts, rng, med, vs, settings, do_single, part)
+            _evaluate_on_threads(pool, threads, reps[pilot], all_terms(settings, len(pilot)), pts, rng, med, vs,
+                                 settings, do_single, part)
             values[pilot] = part
             term_shares.add(part, w_bin[of_bin[pilot]])
             rest = np.setdiff1d(rest, pilot)
