@@ -253,15 +253,15 @@ def extra_evaluations(group: np.ndarray, pixel: np.ndarray, weight: np.ndarray, 
     return (np.floor(share) + (rng.random(nb) < share - np.floor(share))).astype(np.int64)
 
 
-def thread_parts(owner: np.ndarray, threads: int) -> list[np.ndarray]:
-    """The representatives (their segments owner) dealt to `threads` parts, each holding all of a segment's and
-    keeping their order: a segment's random state is then advanced by one thread, in the same order for any
-    thread count. Segments are dealt by their rank among the owners present, not by their index: the camera's
-    rays in a medium often have indices of one parity (a transmitted child is every second slot), and a split by
-    owner % threads gave one thread all the work."""
+def thread_parts(owner: np.ndarray, parts: int) -> list[np.ndarray]:
+    """The representatives (their segments owner) dealt to `parts` parts (some empty where fewer segments), each
+    holding all of a segment's and keeping their order: a segment's random state is then advanced in one part, in
+    the same order for any thread count. Segments are dealt by their rank among the owners present, not by their
+    index: the camera's rays in a medium often have indices of one parity (a transmitted child is every second
+    slot), and a split by owner % threads gave one thread all the work."""
     _, rank = np.unique(owner, return_inverse=True)
-    part = rank.ravel() % threads
-    return [np.flatnonzero(part == t) for t in range(threads)]
+    part = rank.ravel() % parts
+    return [np.flatnonzero(part == t) for t in range(parts)]
 
 
 def lateral_width(cache: CacheSettings, mfp: float, vs) -> float:
@@ -275,17 +275,23 @@ def all_terms(settings, n: int) -> np.ndarray:
     return np.full(n, TERM_DOUBLE * bool(settings.double) + TERM_MULTIPLE * bool(settings.multiple), np.int8)
 
 
+EVAL_PARTS_PER_THREAD = 8  # a flush's representatives in this many parts a thread, taken by whichever thread is
+# free: their costs vary (0.1 to several ms), and two equal halves of the milk glass's left one thread idle for a
+# sixth of the bins' time
+
+
 def _evaluate_on_threads(pool, threads, reps, terms, pts, rng, med, vs, settings, do_single, values):
-    """_evaluate at reps (with their terms) into values, the representatives dealt to threads by segment
-    (thread_parts): one call for all of a flush's bins, however their terms differ, so that no thread waits at a
-    group's end (a representative costs up to a millisecond: groups of a few dozen once ran on one thread)."""
+    """_evaluate at reps (with their terms) into values, the representatives dealt to parts by segment
+    (thread_parts), which the threads take as they come free: one call for all of a flush's bins, however their
+    terms differ, so that no thread waits at a group's end. A segment's random state is advanced by one part, in
+    its representatives' order: the same values for any thread count and any order of the parts."""
     if threads <= 1 or len(reps) < 2:
         _evaluate(reps, terms, pts, rng, med, vs, settings, do_single, values)
         return
-    parts = thread_parts(pts.owner[reps], threads)
+    parts = thread_parts(pts.owner[reps], min(len(reps), threads * EVAL_PARTS_PER_THREAD))
     vals = [np.zeros((len(p), 3, 3)) for p in parts]
     list(pool.map(lambda t: _evaluate(reps[parts[t]], terms[parts[t]], pts, rng, med, vs, settings, do_single,
-                                      vals[t]), range(threads)))
+                                      vals[t]), range(len(parts))))
     for p, v in zip(parts, vals):
         values[p] = v
 
