@@ -213,16 +213,23 @@ def _ball_chord(ca, cb, qa, qb, qw, r2):
 
 
 @njit(inline="always", cache=True)
-def _in_cylinder(xs, ys, zs, j0, j1, sx, sy, sz, ux, uy, uz, t_lo, t_hi, area, hit, hit_t, nh):
+def _in_cylinder(xs, ys, zs, j0, j1, sx, sy, sz, ux, uy, uz, t_lo, t_hi, area, hit, hit_t, nh, col_t, col_in):
     """Appends the points j0 <= j < j1 (coordinates xs, ys, zs) within the kernel cylinder of the axis from s along
     u, t_lo <= t < t_hi, of cross-section `area`, to hit (and their offsets t along the axis to hit_t) from index
-    nh; returns the new count. Without a branch: a point tested is written at nh either way and counted if inside
-    (about one point in seven is: a branch on it was mispredicted often, and the test cost a fifth more)."""
-    for j in range(j0, j1):
+    nh; returns the new count. Two loops: every point's offset and verdict into col_t, col_in (scratch of the
+    points' count), which the compiler vectorises, then the points inside appended without a branch (about one
+    point in seven is: a branch on it was mispredicted often). A tenth less time for single scattering than one
+    loop that tests and appends (docs/pbl.md, section 12)."""
+    n = j1 - j0
+    for k in range(n):
+        j = j0 + k
         t, rr = axis_offset(xs[j] - sx, ys[j] - sy, zs[j] - sz, ux, uy, uz)
-        hit[nh] = j
-        hit_t[nh] = t
-        nh += np.int64((t >= t_lo) & (t < t_hi) & (rr * math.pi <= area))
+        col_t[k] = t
+        col_in[k] = (t >= t_lo) & (t < t_hi) & (rr * math.pi <= area)
+    for k in range(n):
+        hit[nh] = j0 + k
+        hit_t[nh] = col_t[k]
+        nh += np.int64(col_in[k])
     return nh
 
 
@@ -248,6 +255,7 @@ def _splat_legs(vs, med, pts, wdir, lo, side, dims, cell_start, x_from, x_to, ou
     s, u, A, B = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     xs, ys, zs = pts[:, 0].copy(), pts[:, 1].copy(), pts[:, 2].copy()  # (contiguous: _in_cylinder's loop)
     hit, hit_t = np.empty(pts.shape[0], np.int64), np.empty(pts.shape[0])  # a column's points in the cylinder
+    col_t, col_in = np.empty(pts.shape[0]), np.empty(pts.shape[0], np.bool_)  # _in_cylinder's scratch
     for leg in range(vs.leg_first.shape[0]):
         i = vs.leg_first[leg]
         area = v_area[i]
@@ -319,12 +327,12 @@ def _splat_legs(vs, med, pts, wdir, lo, side, dims, cell_start, x_from, x_to, ou
                 nh = 0
                 if stride[w] == 1:  # the column's cells are one run of points
                     nh = _in_cylinder(xs, ys, zs, cell_start[base + iw0], cell_start[base + iw1 + 1], sx, sy, sz, ux,
-                                      uy, uz, t_lo, t_hi, area, hit, hit_t, nh)
+                                      uy, uz, t_lo, t_hi, area, hit, hit_t, nh, col_t, col_in)
                 else:
                     for iw in range(iw0, iw1 + 1):
                         cell = base + iw * stride[w]
                         nh = _in_cylinder(xs, ys, zs, cell_start[cell], cell_start[cell + 1], sx, sy, sz, ux, uy, uz,
-                                          t_lo, t_hi, area, hit, hit_t, nh)
+                                          t_lo, t_hi, area, hit, hit_t, nh, col_t, col_in)
                 for h in range(nh):
                     j = hit[h]
                     beam_share(a0, a1, a2, nx, ny, nz, pq, d0, cn, ux, uy, uz, st0, st1, st2, phase, g, hit_t[h],
