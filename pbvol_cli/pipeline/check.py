@@ -38,6 +38,7 @@ def describe(scene: C.Scene, path: Path) -> dict:
                              "g": mi.material.g, "phase": mi.material.phase, "sealed": bool(b.media[k, MED_SEALED]),
                              "object_size": obj, "mean_free_paths_across": across.tolist(),
                              "diffusion_poor": _diffusion_regime(b, k, box),
+                             "pointbased_poor": pointbased_regime(b, k, box),
                              "marching_poor": _marching_regime(b, k, across,
                                                                scene.render.raymarch.shadows_through_dielectrics),
                              "density": _density_text(b, k),
@@ -78,6 +79,8 @@ def _similarity_notes(scene: C.Scene, b) -> list[str]:
 
 DIFFUSION_THICKNESS = 10.0  # reduced mean free paths: a thinner body is far from the dipole's half-space
 DIFFUSION_ALBEDO = 0.9  # reduced albedo below which diffusion is a poor model (docs/dipole.md)
+POINTBASED_THICKNESS = DIFFUSION_THICKNESS  # reduced mean free paths: thicker bodies of high reduced albedo (the
+POINTBASED_ALBEDO = DIFFUSION_ALBEDO  # dipole's regime) read low in pbl (pointbased_regime)
 
 
 def _density_text(b, k: int) -> str:
@@ -94,25 +97,55 @@ def _density_text(b, k: int) -> str:
             f"{b.media[k, MED_MAJORANT]:.3g}")
 
 
+def _reduced(b, k: int, box) -> tuple[np.ndarray, np.ndarray] | None:
+    """Medium k's body per channel: (its smallest side in reduced mean free paths 1/sigma'_t, its reduced albedo
+    sigma'_s / sigma'_t), sigma'_s = (1 - g) sigma_s; None for a heterogeneous or emissive medium (neither the
+    dipole nor pbl takes it: check's note says so), without a bounding box or without extinction."""
+    mi = b.medium_info[k]
+    if mi.material.density is not None or mi.material.emission is not None:
+        return None
+    sp = (1.0 - mi.material.g) * mi.sigma_s
+    tp = mi.sigma_a + sp
+    if box is None or not np.any(tp > 0):
+        return None
+    return float(np.min(box[1] - box[0])) * tp, np.where(tp > 0, sp / np.maximum(tp, 1e-300), 1.0)
+
+
 def _diffusion_regime(b, k: int, box) -> str:
     """Whether the dipole's diffusion (--method dipole) suits medium k: "" where it does, else why not (its body
     thin in reduced mean free paths 1/sigma'_t, so light crosses it rather than diffusing back out, or its reduced
     albedo low)."""
-    mi = b.medium_info[k]
-    if mi.material.density is not None or mi.material.emission is not None:
-        return ""  # (the dipole does not take it at all: check's note says so)
-    sp = (1.0 - mi.material.g) * mi.sigma_s
-    tp = mi.sigma_a + sp
-    if box is None or not np.any(tp > 0):
+    reduced = _reduced(b, k, box)
+    if reduced is None:
         return ""
-    thin = float(np.min(box[1] - box[0]) * np.min(tp[tp > 0]))
-    albedo = float(np.min(np.where(tp > 0, sp / np.maximum(tp, 1e-300), 1.0)))
+    thickness, albedo = reduced
+    thin = float(np.min(thickness[thickness > 0]))
     why = []
     if thin < DIFFUSION_THICKNESS:
         why.append(f"only {thin:.2g} reduced mean free paths thick")
-    if albedo < DIFFUSION_ALBEDO:
-        why.append(f"reduced albedo {albedo:.2g}")
+    if float(np.min(albedo)) < DIFFUSION_ALBEDO:
+        why.append(f"reduced albedo {float(np.min(albedo)):.2g}")
     return ", ".join(why)
+
+
+def pointbased_regime(b, k: int, box=None) -> str:
+    """Whether the point-based method (--method pbl) renders medium k's scattered light in full: "" where it does,
+    else why not. A body thicker than POINTBASED_THICKNESS reduced mean free paths in a channel of reduced albedo
+    above POINTBASED_ALBEDO (the dipole's regime) reads low: its multiple scattering and bounced light fall short
+    of volpath's, the more so the thicker the body (marble spheres 13-18, 53-73 and 131-180 thick: 0.83-0.90,
+    0.69-0.84 and 0.49-0.61 of volpath's scattered light; docs/pbl.md, section 13). box: the body's bounding box
+    (None: found here)."""
+    reduced = _reduced(b, k, _medium_box(b, k) if box is None else box)
+    if reduced is None:
+        return ""
+    thickness, albedo = reduced
+    diffusing = albedo > POINTBASED_ALBEDO
+    if not np.any(diffusing):
+        return ""
+    thick = float(np.max(thickness[diffusing]))
+    if thick <= POINTBASED_THICKNESS:
+        return ""
+    return f"{thick:.0f} reduced mean free paths thick, reduced albedo {float(np.max(albedo[diffusing])):.3g}"
 
 
 MARCHING_DENSE = 20.0  # mean free paths across: a denser high-albedo body makes the VPLs spike (docs/vpl.md)
@@ -208,8 +241,12 @@ def summarize(scene: C.Scene, path: Path) -> str:
                                                                else ""))
         if m["diffusion_poor"]:
             lines.append(f"      dipole: far from its thick, high-albedo regime ({m['diffusion_poor']})")
+        if m["pointbased_poor"]:
+            lines.append(f"      pbl: its multiple scattering reads low in a body this thick ({m['pointbased_poor']}; "
+                         "docs/pbl.md, section 13); the dipole suits it (--method dipole)")
         if m["marching_poor"]:
-            better = "volpath" if m["density"] != "homogeneous" or m["emission"] else "pbl (or dipole)"
+            better = ("volpath" if m["density"] != "homogeneous" or m["emission"] else
+                      "dipole" if m["pointbased_poor"] else "pbl (or dipole)")
             lines.append(f"      raymarch, vpl: far from their regime ({m['marching_poor']}); {better} suits it "
                          "better")
     lines += [f"  note: {n}" for n in d["notes"]]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import sys
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -421,6 +422,18 @@ def pbl_media(built, pbl, method: str):
     return built
 
 
+def _note_thick_bodies(built, scene_path):
+    """A note on stderr for each medium whose body pbl renders too dark (check.pointbased_regime): a render that
+    reads low where the method is known to, said before it starts."""
+    from pbvol_cli.pipeline.check import pointbased_regime
+
+    for k, info in enumerate(built.medium_info):
+        why = pointbased_regime(built, k)
+        if why:
+            print(f"note: {scene_path}: medium {info.label!r}: {why}: pbl's multiple scattering reads low in a body "
+                  "this thick (docs/pbl.md, section 13); --method dipole suits it", file=sys.stderr)
+
+
 def light_side(scene, built, seed, threads, opts, scene_path) -> LightSide:
     """The light side of a pbl or dipole render from the cache (built and stored when missing)."""
     from pbvol_cli.geometry.scene_build import MED_G
@@ -432,6 +445,8 @@ def light_side(scene, built, seed, threads, opts, scene_path) -> LightSide:
     from pbvol_cli.pointbased.passes import TABLE_COMPONENTS
 
     homogeneous_media_only(built, opts.method, scene_path)
+    if opts.method == "pbl":
+        _note_thick_bodies(built, scene_path)
     pbl = scene.render.pbl
     dipole = opts.method == "dipole"
     if dipole and opts.components:
@@ -518,8 +533,6 @@ def homogeneous_media_only(built, method: str, scene_path):
 
 def _diffusion_term(scene, built, seed, cache, threads, quiet):
     """(the dipole's DiffusionPasses, seconds, whether pass 0's samples came from the cache)."""
-    import sys
-
     from pbvol_cli.dipole.hierarchy import DiffusionPasses
     from pbvol_cli.dipole.irradiance import place_irradiance_samples
     from pbvol_cli.pipeline.samples import get_irradiance_samples
