@@ -350,33 +350,37 @@ def test_check_says_where_diffusion_is_poor():
 
 def test_check_says_where_the_point_based_method_reads_low():
     """pbl's regime ends where the dipole's begins: the marble bunny (73 reduced mean free paths thick, reduced
-    albedo 0.999) reads low in pbl (0.69-0.84 of volpath's scattered light, docs/pbl.md section 13), the milk glass
-    (3 thick) and the wax sphere (4 thick) do not; the oil sphere (reduced albedo 0.08 at most) has no diffusion."""
+    albedo 0.999) reads low in pbl (0.69-0.84 of volpath's scattered light, the dipole 0.96-0.97: docs/pbl.md
+    section 11), the milk glass (3 thick) and the wax sphere (4 thick) do not; the oil sphere (reduced albedo 0.08
+    at most) has no diffusion."""
     root = Path(__file__).resolve().parent.parent / "configs"
     media = {name: json.loads(runner.invoke(app, ["check", str(root / f"{name}.toml"), "--json"]).stdout)["media"][0]
              for name in ("marble_bunny", "milk_glass", "wax_sphere", "oil_sphere")}
-    assert "73 reduced mean free paths thick, reduced albedo 0.999" == media["marble_bunny"]["pointbased_poor"]
+    assert media["marble_bunny"]["pointbased_poor"].startswith("73 reduced mean free paths thick, reduced albedo 0.999")
+    assert media["marble_bunny"]["pointbased_poor"].endswith("--method dipole suits it")
     assert all(media[name]["pointbased_poor"] == "" for name in ("milk_glass", "wax_sphere", "oil_sphere"))
     text = runner.invoke(app, ["check", str(root / "marble_bunny.toml")]).stdout
-    assert "pbl: its multiple scattering reads low" in text and "--method dipole" in text
+    assert "pbl: 73 reduced mean free paths thick" in text and "multiple scattering reads low" in text
     assert "dipole suits it better" in text  # (the marching methods' advice no longer points at pbl)
 
 
 def test_a_pbl_render_of_a_thick_dense_body_says_it_reads_low(tmp_path):
     """The note of check's pointbased_poor, on stderr before the render starts; a body in pbl's regime gets none."""
-    def render(unit: str):
+    def render(unit: str, radius: float = 1.0):
         scene = write_scene(tmp_path, {"unit": unit, "camera": camera((2, 2)),
                                        "render": {"spp": 1, "pbl": {"surface_samples": 64, "segments_per_beam": 2}},
                                        "lights": [{"type": "environment", "radiance": 1.0}],
-                                       "shapes": [{"type": "sphere", "radius": 1.0, "interface": "dielectric",
+                                       "shapes": [{"type": "sphere", "radius": radius, "interface": "dielectric",
                                                    "medium": "marble"}]})
         r = runner.invoke(app, ["render", str(scene), "-o", str(tmp_path / "x.exr"), "--method", "pbl",
                                 "--components", "single", "-q", "--cache-dir", str(tmp_path / "cache")])
         assert r.exit_code == 0, r.output
         return r.stderr
 
-    err = render("cm")  # a marble sphere 2 cm across: 44 reduced mean free paths in its least dense channel
+    err = render("cm")  # a marble sphere 2 cm across: 44-60 reduced mean free paths thick
     assert "medium 'marble': 60 reduced mean free paths thick" in err and "--method dipole suits it" in err, err
+    err = render("mm", 5.0)  # 10 mm across: 22-30 thick, where the dipole read as low as pbl
+    assert "30 reduced mean free paths thick" in err and "dipole reads about as low below 50" in err, err
     assert "reduced mean free paths" not in render("mm")  # 2 mm across: 4-6 thick
 
 

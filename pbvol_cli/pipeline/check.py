@@ -80,7 +80,10 @@ def _similarity_notes(scene: C.Scene, b) -> list[str]:
 DIFFUSION_THICKNESS = 10.0  # reduced mean free paths: a thinner body is far from the dipole's half-space
 DIFFUSION_ALBEDO = 0.9  # reduced albedo below which diffusion is a poor model (docs/dipole.md)
 POINTBASED_THICKNESS = DIFFUSION_THICKNESS  # reduced mean free paths: thicker bodies of high reduced albedo (the
-POINTBASED_ALBEDO = DIFFUSION_ALBEDO  # dipole's regime) read low in pbl (pointbased_regime)
+POINTBASED_ALBEDO = DIFFUSION_ALBEDO  # dipole's regime) read low in pbl (pointbased_regime): marble spheres 13-18,
+# 53-73 and 131-180 thick read 0.83-0.90, 0.69-0.84 and 0.49-0.61 of volpath's scattered light in pbl
+DIPOLE_BETTER_THICKNESS = 50.0  # from about here the dipole reads far closer (0.96-0.97 and 0.95-1.00 at 53-73 and
+# 131-180; at 13-18 it read 0.83-0.84, as low as pbl)
 
 
 def _density_text(b, k: int) -> str:
@@ -97,11 +100,13 @@ def _density_text(b, k: int) -> str:
             f"{b.media[k, MED_MAJORANT]:.3g}")
 
 
-def _reduced(b, k: int, box) -> tuple[np.ndarray, np.ndarray] | None:
+def reduced_thickness(b, k: int, box=None) -> tuple[np.ndarray, np.ndarray] | None:
     """Medium k's body per channel: (its smallest side in reduced mean free paths 1/sigma'_t, its reduced albedo
     sigma'_s / sigma'_t), sigma'_s = (1 - g) sigma_s; None for a heterogeneous or emissive medium (neither the
-    dipole nor pbl takes it: check's note says so), without a bounding box or without extinction."""
+    dipole nor pbl takes it: check's note says so), without a bounding box or without extinction. box: the body's
+    bounding box (None: found here)."""
     mi = b.medium_info[k]
+    box = _medium_box(b, k) if box is None else box
     if mi.material.density is not None or mi.material.emission is not None:
         return None
     sp = (1.0 - mi.material.g) * mi.sigma_s
@@ -115,7 +120,7 @@ def _diffusion_regime(b, k: int, box) -> str:
     """Whether the dipole's diffusion (--method dipole) suits medium k: "" where it does, else why not (its body
     thin in reduced mean free paths 1/sigma'_t, so light crosses it rather than diffusing back out, or its reduced
     albedo low)."""
-    reduced = _reduced(b, k, box)
+    reduced = reduced_thickness(b, k, box)
     if reduced is None:
         return ""
     thickness, albedo = reduced
@@ -130,12 +135,12 @@ def _diffusion_regime(b, k: int, box) -> str:
 
 def pointbased_regime(b, k: int, box=None) -> str:
     """Whether the point-based method (--method pbl) renders medium k's scattered light in full: "" where it does,
-    else why not. A body thicker than POINTBASED_THICKNESS reduced mean free paths in a channel of reduced albedo
-    above POINTBASED_ALBEDO (the dipole's regime) reads low: its multiple scattering and bounced light fall short
-    of volpath's, the more so the thicker the body (marble spheres 13-18, 53-73 and 131-180 thick: 0.83-0.90,
-    0.69-0.84 and 0.49-0.61 of volpath's scattered light; docs/pbl.md, section 13). box: the body's bounding box
-    (None: found here)."""
-    reduced = _reduced(b, k, _medium_box(b, k) if box is None else box)
+    else why not and what to use instead. A body thicker than POINTBASED_THICKNESS reduced mean free paths in a
+    channel of reduced albedo above POINTBASED_ALBEDO (the dipole's regime) reads low: its multiple scattering and
+    bounced light fall short of volpath's, the more so the thicker the body; from DIPOLE_BETTER_THICKNESS the dipole
+    reads far closer (benchmarks/pbl_thickness.py, docs/pbl.md section 11). box: the body's bounding box (None:
+    found here)."""
+    reduced = reduced_thickness(b, k, box)
     if reduced is None:
         return ""
     thickness, albedo = reduced
@@ -145,7 +150,10 @@ def pointbased_regime(b, k: int, box=None) -> str:
     thick = float(np.max(thickness[diffusing]))
     if thick <= POINTBASED_THICKNESS:
         return ""
-    return f"{thick:.0f} reduced mean free paths thick, reduced albedo {float(np.max(albedo[diffusing])):.3g}"
+    instead = ("--method dipole suits it" if thick >= DIPOLE_BETTER_THICKNESS else
+               f"--method dipole reads about as low below {DIPOLE_BETTER_THICKNESS:g}")
+    return (f"{thick:.0f} reduced mean free paths thick, reduced albedo {float(np.max(albedo[diffusing])):.3g}: "
+            f"pbl's multiple scattering reads low in a body this thick (docs/pbl.md, section 11); {instead}")
 
 
 MARCHING_DENSE = 20.0  # mean free paths across: a denser high-albedo body makes the VPLs spike (docs/vpl.md)
@@ -242,11 +250,10 @@ def summarize(scene: C.Scene, path: Path) -> str:
         if m["diffusion_poor"]:
             lines.append(f"      dipole: far from its thick, high-albedo regime ({m['diffusion_poor']})")
         if m["pointbased_poor"]:
-            lines.append(f"      pbl: its multiple scattering reads low in a body this thick ({m['pointbased_poor']}; "
-                         "docs/pbl.md, section 13); the dipole suits it (--method dipole)")
+            lines.append(f"      pbl: {m['pointbased_poor']}")
         if m["marching_poor"]:
             better = ("volpath" if m["density"] != "homogeneous" or m["emission"] else
-                      "dipole" if m["pointbased_poor"] else "pbl (or dipole)")
+                      "dipole" if "dipole suits" in m["pointbased_poor"] else "pbl (or dipole)")
             lines.append(f"      raymarch, vpl: far from their regime ({m['marching_poor']}); {better} suits it "
                          "better")
     lines += [f"  note: {n}" for n in d["notes"]]

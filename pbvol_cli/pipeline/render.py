@@ -430,8 +430,7 @@ def _note_thick_bodies(built, scene_path):
     for k, info in enumerate(built.medium_info):
         why = pointbased_regime(built, k)
         if why:
-            print(f"note: {scene_path}: medium {info.label!r}: {why}: pbl's multiple scattering reads low in a body "
-                  "this thick (docs/pbl.md, section 13); --method dipole suits it", file=sys.stderr)
+            print(f"note: {scene_path}: medium {info.label!r}: {why}", file=sys.stderr)
 
 
 def light_side(scene, built, seed, threads, opts, scene_path) -> LightSide:

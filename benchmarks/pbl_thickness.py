@@ -1,0 +1,92 @@
+#!/usr/bin/env python3
+"""How much of a dense body's scattered light each method renders against volpath, as the body thickens.
+
+    .venv/bin/python benchmarks/pbl_thickness.py [--units mm,cm] [--scenes configs/marble_bunny.toml]
+        [--methods pbl,dipole] [--resolution 32] [--spp 8] [--ref-spp 1024] [--out bench-out/pbl_thickness]
+        [--threads 2] [--cache DIR]
+
+benchmarks/scenes/marble_sphere.toml in each of --units (a sphere of radius 3 units: mm 13-18, cm 131-180 reduced
+mean free paths thick), then each of --scenes. Per scene: volpath at --ref-spp, volpath with no volume scattering
+(--orders 0: the surfaces alone, at a quarter of --ref-spp) and each of --methods at --spp. Prints the body's
+thickness and reduced albedo as `pbvol check` reads them (its pointbased_poor: empty where pbl's regime holds),
+then per method its time and the ratio to volpath (R, G, B) of the image's mean and of the scattered light's: the
+image less volpath's surfaces, over the pixels where volpath's scattered light is above 5 % of its brightest.
+Each render is kept in --out and reused when there.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+
+def main():
+    import tomli_w
+
+    from pbvol_cli import config as C
+    from pbvol_cli.geometry.scene_build import build_scene
+    from pbvol_cli.imageio import read_exr
+    from pbvol_cli.pipeline.check import reduced_thickness
+    from pbvol_cli.pipeline.render import RenderOptions, render_scene
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--units", default="mm,cm", help="units for benchmarks/scenes/marble_sphere.toml ('' for none)")
+    ap.add_argument("--scenes", default="configs/marble_bunny.toml", help="more scene files, comma-separated")
+    ap.add_argument("--methods", default="pbl")
+    ap.add_argument("--resolution", type=int, default=32)
+    ap.add_argument("--spp", type=int, default=8)
+    ap.add_argument("--ref-spp", type=int, default=1024)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--out", type=Path, default=ROOT / "bench-out" / "pbl_thickness")
+    ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
+    args = ap.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    scenes = []
+    sphere = ROOT / "benchmarks" / "scenes" / "marble_sphere.toml"
+    for unit in filter(None, args.units.split(",")):
+        doc = tomllib.loads(sphere.read_text())
+        doc["unit"] = unit
+        path = args.out / f"marble_sphere_{unit}.toml"
+        path.write_text(tomli_w.dumps(doc))
+        scenes.append(path)
+    scenes += [ROOT / s for s in filter(None, args.scenes.split(","))]
+    res = (args.resolution, args.resolution)
+
+    def render(scene: Path, method: str, spp: int, orders=None):
+        out = args.out / f"{scene.stem}_{method}_{spp}{'_orders' + orders if orders else ''}_{args.resolution}.exr"
+        seconds = None
+        if not out.exists():
+            t = time.perf_counter()
+            render_scene(scene, out, RenderOptions(method=method, spp=spp, resolution=res, orders=orders,
+                                                   threads=args.threads, cache_dir=args.cache, quiet=True))
+            seconds = time.perf_counter() - t
+        return read_exr(out)[0], seconds
+
+    def ratios(a):
+        return " ".join(f"{v:.3f}" for v in a)
+
+    for scene in scenes:
+        sc = C.load_scene(scene)
+        b = build_scene(sc, scene, (8, 8))
+        thickness, albedo = reduced_thickness(b, 0)
+        ref, _ = render(scene, "volpath", args.ref_spp)
+        surfaces, _ = render(scene, "volpath", max(1, args.ref_spp // 4), orders="0")
+        scattered = ref - surfaces
+        mask = scattered.mean(axis=2) > 0.05 * scattered.mean(axis=2).max()
+        print(f"{scene.stem}: {ratios(thickness).replace(' ', ', ')} reduced mean free paths thick, reduced albedo "
+              f"{ratios(albedo).replace(' ', ', ')}; {int(mask.sum())} pixels of scattered light")
+        for method in args.methods.split(","):
+            img, seconds = render(scene, method, args.spp)
+            took = f"{seconds:.1f} s" if seconds is not None else "kept"
+            print(f"  {method:7s} ({took}): image {ratios(img.mean((0, 1)) / ref.mean((0, 1)))}, scattered light "
+                  f"{ratios((img - surfaces)[mask].mean(0) / scattered[mask].mean(0))} of volpath's")
+
+
+if __name__ == "__main__":
+    main()
