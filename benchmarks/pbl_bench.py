@@ -123,6 +123,26 @@ def output_args(ap):
     ap.add_argument("--out", type=Path, default=ROOT / "bench-out")
 
 
+def one_scene_args(ap, resolution: int):
+    """The options of a benchmark that renders one scene in its own process: --scene (a config name in configs/ or
+    a scene file: scene_file), --resolution, --threads, --cache."""
+    ap.add_argument("--scene", default="oil_sphere", help="a config name in configs/ or a scene file")
+    ap.add_argument("--resolution", type=int, default=resolution)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
+
+
+def scene_file(arg: str) -> Path:
+    """--scene's file: a path ending in .toml, else configs/<arg>.toml."""
+    return Path(arg) if arg.endswith(".toml") else ROOT / "configs" / f"{arg}.toml"
+
+
+def parsed_scene(ap):
+    """(ap's parsed arguments, --scene's file)."""
+    args = ap.parse_args()
+    return args, scene_file(args.scene)
+
+
 def rel_mse(a, b) -> float:
     from pbvol_cli.pipeline.compare import image_metrics
 

@@ -20,6 +20,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from pbl_bench import one_scene_args, parsed_scene  # noqa: E402
 
 
 def main():
@@ -30,13 +32,9 @@ def main():
     from pbvol_cli.pipeline.render import RenderOptions, render_scene
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--scene", default="oil_sphere", help="a config name in configs/ or a scene file")
-    ap.add_argument("--resolution", type=int, default=128)
+    one_scene_args(ap, 128)
     ap.add_argument("--spp", type=int, default=2)
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
-    args = ap.parse_args()
-    scene = Path(args.scene) if args.scene.endswith(".toml") else ROOT / "configs" / f"{args.scene}.toml"
+    args, scene = parsed_scene(ap)
     seconds, calls = collections.defaultdict(float), collections.defaultdict(int)
 
     def timed(module, name, label):
