@@ -1,16 +1,19 @@
 #!/usr/bin/env python3
 """How much of a dense body's scattered light each method renders against volpath, as the body thickens.
 
-    .venv/bin/python benchmarks/pbl_thickness.py [--units mm,cm] [--scenes configs/marble_bunny.toml]
+    .venv/bin/python benchmarks/pbl_thickness.py [--thickness 15,30,60,120,240] [--scenes configs/marble_bunny.toml]
         [--methods pbl,dipole] [--resolution 32] [--spp 8] [--ref-spp 1024] [--out bench-out/pbl_thickness]
         [--threads 2] [--cache DIR]
 
-benchmarks/scenes/marble_sphere.toml in each of --units (a sphere of radius 3 units: mm 13-18, cm 131-180 reduced
-mean free paths thick), then each of --scenes. Per scene: volpath at --ref-spp, volpath with no volume scattering
-(--orders 0: the surfaces alone, at a quarter of --ref-spp) and each of --methods at --spp. Prints the body's
-thickness and reduced albedo as `pbvol check` reads them (its pointbased_poor: empty where pbl's regime holds),
-then per method its time and the ratio to volpath (R, G, B) of the image's mean and of the scattered light's: the
-image less volpath's surfaces, over the pixels where volpath's scattered light is above 5 % of its brightest.
+benchmarks/scenes/marble_sphere.toml (a sphere of radius 3 cm behind eta 1.5 over a floor, under a sphere light)
+with its marble replaced by a grey medium of albedo 0.999, g 0 and index --eta whose mean free path makes the
+sphere each of --thickness mean free paths across (the same geometry and light throughout; the files are named
+grey_sphere_<thickness>_eta<eta>), then each of --scenes as they are
+(the marble bunny: 53-73 reduced mean free paths thick). Per scene: volpath at --ref-spp, volpath
+with no volume scattering (--orders 0: the surfaces alone, at a quarter of --ref-spp) and each of --methods at
+--spp. Prints the body's thickness and reduced albedo as `pbvol check` reads them (check.reduced_thickness), then
+per method its time and the ratio to volpath (R, G, B) of the image's mean and of the scattered light's: the image
+less volpath's surfaces, over the pixels where volpath's scattered light is above 5 % of its brightest.
 Each render is kept in --out and reused when there.
 """
 
@@ -24,6 +27,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+SPHERE_ALBEDO = 0.999  # the grey spheres' (marble's is 0.998-0.999)
 
 
 def main():
@@ -36,7 +40,9 @@ def main():
     from pbvol_cli.pipeline.render import RenderOptions, render_scene
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--units", default="mm,cm", help="units for benchmarks/scenes/marble_sphere.toml ('' for none)")
+    ap.add_argument("--eta", type=float, default=1.5, help="the grey spheres' index (marble's: 1.5)")
+    ap.add_argument("--thickness", default="15,30,60,120,240",
+                    help="the sphere's diameters in mean free paths ('' for none)")
     ap.add_argument("--scenes", default="configs/marble_bunny.toml", help="more scene files, comma-separated")
     ap.add_argument("--methods", default="pbl")
     ap.add_argument("--resolution", type=int, default=32)
@@ -49,10 +55,12 @@ def main():
     args.out.mkdir(parents=True, exist_ok=True)
     scenes = []
     sphere = ROOT / "benchmarks" / "scenes" / "marble_sphere.toml"
-    for unit in filter(None, args.units.split(",")):
+    for across in filter(None, args.thickness.split(",")):
         doc = tomllib.loads(sphere.read_text())
-        doc["unit"] = unit
-        path = args.out / f"marble_sphere_{unit}.toml"
+        diameter = 2.0 * doc["shapes"][0]["radius"]
+        doc["shapes"][0]["medium"] = {"albedo": SPHERE_ALBEDO, "g": 0.0, "mean_free_path": diameter / float(across),
+                                      "eta": args.eta}
+        path = args.out / f"grey_sphere_{across}_eta{args.eta:g}.toml"
         path.write_text(tomli_w.dumps(doc))
         scenes.append(path)
     scenes += [ROOT / s for s in filter(None, args.scenes.split(","))]

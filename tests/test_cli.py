@@ -379,8 +379,8 @@ def test_a_pbl_render_of_a_thick_dense_body_says_it_reads_low(tmp_path):
 
     err = render("cm")  # a marble sphere 2 cm across: 44-60 reduced mean free paths thick
     assert "medium 'marble': 60 reduced mean free paths thick" in err and "--method dipole suits it" in err, err
-    err = render("mm", 5.0)  # 10 mm across: 22-30 thick, where the dipole read as low as pbl
-    assert "30 reduced mean free paths thick" in err and "dipole reads about as low below 50" in err, err
+    err = render("mm", 3.0)  # 6 mm across: 13-18 thick, where the dipole read as low as pbl
+    assert "18 reduced mean free paths thick" in err and "dipole reads about as low below 30" in err, err
     assert "reduced mean free paths" not in render("mm")  # 2 mm across: 4-6 thick
 
 

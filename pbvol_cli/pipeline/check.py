@@ -80,10 +80,9 @@ def _similarity_notes(scene: C.Scene, b) -> list[str]:
 DIFFUSION_THICKNESS = 10.0  # reduced mean free paths: a thinner body is far from the dipole's half-space
 DIFFUSION_ALBEDO = 0.9  # reduced albedo below which diffusion is a poor model (docs/dipole.md)
 POINTBASED_THICKNESS = DIFFUSION_THICKNESS  # reduced mean free paths: thicker bodies of high reduced albedo (the
-POINTBASED_ALBEDO = DIFFUSION_ALBEDO  # dipole's regime) read low in pbl (pointbased_regime): marble spheres 13-18,
-# 53-73 and 131-180 thick read 0.83-0.90, 0.69-0.84 and 0.49-0.61 of volpath's scattered light in pbl
-DIPOLE_BETTER_THICKNESS = 50.0  # from about here the dipole reads far closer (0.96-0.97 and 0.95-1.00 at 53-73 and
-# 131-180; at 13-18 it read 0.83-0.84, as low as pbl)
+POINTBASED_ALBEDO = DIFFUSION_ALBEDO  # dipole's regime) read low in pbl (pointbased_regime): grey spheres behind
+# eta 1.5, 15, 30, 60 and 120 thick, read 0.88, 0.83, 0.82 and 0.69 of volpath's scattered light
+DIPOLE_BETTER_THICKNESS = 30.0  # from about here the dipole reads closer (0.89, 0.97 at 30, 60; 0.82 at 15)
 
 
 def _density_text(b, k: int) -> str:
