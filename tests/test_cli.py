@@ -364,6 +364,20 @@ def test_check_says_where_the_point_based_method_reads_low():
     assert "dipole suits it better" in text  # (the marching methods' advice no longer points at pbl)
 
 
+def test_check_names_an_index_matched_body_only_when_thicker(tmp_path):
+    """An index-matched body reads right in pbl at 15 and 30 reduced mean free paths (docs/pbl.md, section 11): a
+    marble sphere behind a null boundary is named from 30 on, behind eta 1.5 from 10 on."""
+    def poor(interface: str, radius_mm: float) -> str:
+        scene = write_scene(tmp_path, {"unit": "mm", "camera": camera((2, 2)),
+                                       "lights": [{"type": "environment", "radiance": 1.0}],
+                                       "shapes": [{"type": "sphere", "radius": radius_mm, "interface": interface,
+                                                   "medium": "marble"}]})
+        return json.loads(runner.invoke(app, ["check", str(scene), "--json"]).stdout)["media"][0]["pointbased_poor"]
+
+    assert poor("null", 3.0) == "" and poor("dielectric", 3.0).startswith("18 reduced mean free paths thick")
+    assert poor("null", 10.0).startswith("60 reduced mean free paths thick")
+
+
 def test_a_pbl_render_of_a_thick_dense_body_says_it_reads_low(tmp_path):
     """The note of check's pointbased_poor, on stderr before the render starts; a body in pbl's regime gets none."""
     def render(unit: str, radius: float = 1.0):

@@ -83,6 +83,8 @@ POINTBASED_THICKNESS = DIFFUSION_THICKNESS  # reduced mean free paths: thicker b
 POINTBASED_ALBEDO = DIFFUSION_ALBEDO  # dipole's regime) read low in pbl (pointbased_regime): grey spheres behind
 # eta 1.5, 15, 30, 60 and 120 thick, read 0.88, 0.83, 0.82 and 0.69 of volpath's scattered light
 DIPOLE_BETTER_THICKNESS = 30.0  # from about here the dipole reads closer (0.89, 0.97 at 30, 60; 0.82 at 15)
+POINTBASED_MATCHED_THICKNESS = 30.0  # the same for a body whose boundary does not reflect: index-matched, the grey
+# spheres read 1.015 and 0.996 at 15 and 30 (a box 1000 thick read low: docs/pbl.md, section 13)
 
 
 def _density_text(b, k: int) -> str:
@@ -132,13 +134,23 @@ def _diffusion_regime(b, k: int, box) -> str:
     return ", ".join(why)
 
 
+def _reflects(b, k: int) -> bool:
+    """Whether medium k's boundary reflects light back into it somewhere: a surface bounding it that is not a null
+    boundary or an index-matched dielectric."""
+    from pbvol_cli.geometry.scene_build import DIELECTRIC, NULL, SURF_ETA_IN, SURF_ETA_OUT, SURF_TYPE
+
+    s = b.surfaces[b.surfaces_bounding(k)]
+    matched = (s[:, SURF_TYPE] == NULL) | ((s[:, SURF_TYPE] == DIELECTRIC) & (s[:, SURF_ETA_IN] == s[:, SURF_ETA_OUT]))
+    return bool(np.any(~matched))
+
+
 def pointbased_regime(b, k: int, box=None) -> str:
     """Whether the point-based method (--method pbl) renders medium k's scattered light in full: "" where it does,
-    else why not and what to use instead. A body thicker than POINTBASED_THICKNESS reduced mean free paths in a
-    channel of reduced albedo above POINTBASED_ALBEDO (the dipole's regime) reads low: its multiple scattering and
-    bounced light fall short of volpath's, the more so the thicker the body; from DIPOLE_BETTER_THICKNESS the dipole
-    reads far closer (benchmarks/pbl_thickness.py, docs/pbl.md section 11). box: the body's bounding box (None:
-    found here)."""
+    else why not and what to use instead. A body thicker than POINTBASED_THICKNESS reduced mean free paths
+    (POINTBASED_MATCHED_THICKNESS where its boundary does not reflect) in a channel of reduced albedo above
+    POINTBASED_ALBEDO (the dipole's regime) reads low: its multiple scattering and bounced light fall short of
+    volpath's, the more so the thicker the body; from DIPOLE_BETTER_THICKNESS the dipole reads closer
+    (benchmarks/pbl_thickness.py, docs/pbl.md section 11). box: the body's bounding box (None: found here)."""
     reduced = reduced_thickness(b, k, box)
     if reduced is None:
         return ""
@@ -147,7 +159,7 @@ def pointbased_regime(b, k: int, box=None) -> str:
     if not np.any(diffusing):
         return ""
     thick = float(np.max(thickness[diffusing]))
-    if thick <= POINTBASED_THICKNESS:
+    if thick <= (POINTBASED_THICKNESS if _reflects(b, k) else POINTBASED_MATCHED_THICKNESS):
         return ""
     instead = ("--method dipole suits it" if thick >= DIPOLE_BETTER_THICKNESS else
                f"--method dipole reads about as low below {DIPOLE_BETTER_THICKNESS:g}")
