@@ -1,20 +1,21 @@
 #!/usr/bin/env python3
 """How much of a dense body's scattered light each method renders against volpath, as the body thickens.
 
-    .venv/bin/python benchmarks/pbl_thickness.py [--thickness 15,30,60,120,240] [--scenes configs/marble_bunny.toml]
-        [--methods pbl,dipole] [--resolution 32] [--spp 8] [--ref-spp 1024] [--out bench-out/pbl_thickness]
-        [--threads 2] [--cache DIR]
+    .venv/bin/python benchmarks/pbl_thickness.py [--thickness 15,30,60,120,240] [--eta 1.5] [--albedo 0.999] [--g 0]
+        [--scenes configs/marble_bunny.toml] [--methods pbl,dipole] [--resolution 32] [--spp 8] [--ref-spp 1024]
+        [--ref-seeds 8] [--out bench-out/pbl_thickness] [--threads 2] [--cache DIR]
 
 benchmarks/scenes/marble_sphere.toml (a sphere of radius 3 cm behind eta 1.5 over a floor, under a sphere light)
-with its marble replaced by a grey medium of albedo 0.999, g 0 and index --eta whose mean free path makes the
-sphere each of --thickness mean free paths across (the same geometry and light throughout; the files are named
-grey_sphere_<thickness>_eta<eta>), then each of --scenes as they are
-(the marble bunny: 53-73 reduced mean free paths thick). Per scene: volpath at --ref-spp, volpath
-with no volume scattering (--orders 0: the surfaces alone, at a quarter of --ref-spp) and each of --methods at
---spp. Prints the body's thickness and reduced albedo as `pbvol check` reads them (check.reduced_thickness), then
-per method its time and the ratio to volpath (R, G, B) of the image's mean and of the scattered light's: the image
-less volpath's surfaces, over the pixels where volpath's scattered light is above 5 % of its brightest.
-Each render is kept in --out and reused when there.
+with its marble replaced by a grey medium of --albedo, --g and index --eta whose mean free path makes the sphere
+each of --thickness reduced mean free paths (1/sigma'_t) across (the same geometry and light throughout; the files
+are named grey_sphere_<thickness>_eta<eta>, with _albedo<a> and _g<g> where those are not 0.999 and 0), then each
+of --scenes as they are (the marble bunny: 53-73 reduced mean free paths thick). Per scene: volpath at --ref-spp
+with seeds 1 to --ref-seeds, averaged (one seed's 1024 samples read a sphere's scattered light within 2-5 %),
+volpath with no volume scattering (--orders 0: the surfaces alone, at a quarter of --ref-spp) and each of
+--methods at --spp. Prints the body's thickness and reduced albedo as `pbvol check` reads them
+(check.reduced_thickness), then per method its time and the ratio to volpath (R, G, B) of the image's mean and of
+the scattered light's: the image less volpath's surfaces, over the pixels where volpath's scattered light is above
+5 % of its brightest. Each render is kept in --out and reused when there.
 """
 
 from __future__ import annotations
@@ -27,10 +28,11 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-SPHERE_ALBEDO = 0.999  # the grey spheres' (marble's is 0.998-0.999)
+SPHERE_ALBEDO = 0.999  # the grey spheres' default (marble's is 0.998-0.999)
 
 
 def main():
+    import numpy as np
     import tomli_w
 
     from pbvol_cli import config as C
@@ -42,12 +44,15 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--eta", type=float, default=1.5, help="the grey spheres' index (marble's: 1.5)")
     ap.add_argument("--thickness", default="15,30,60,120,240",
-                    help="the sphere's diameters in mean free paths ('' for none)")
+                    help="the sphere's diameters in reduced mean free paths ('' for none)")
+    ap.add_argument("--albedo", type=float, default=SPHERE_ALBEDO, help="the grey spheres' single-scattering albedo")
+    ap.add_argument("--g", type=float, default=0.0, help="the grey spheres' Henyey-Greenstein g")
     ap.add_argument("--scenes", default="configs/marble_bunny.toml", help="more scene files, comma-separated")
     ap.add_argument("--methods", default="pbl")
     ap.add_argument("--resolution", type=int, default=32)
     ap.add_argument("--spp", type=int, default=8)
     ap.add_argument("--ref-spp", type=int, default=1024)
+    ap.add_argument("--ref-seeds", type=int, default=8, help="volpath renders averaged for the reference")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--out", type=Path, default=ROOT / "bench-out" / "pbl_thickness")
     ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
@@ -58,20 +63,23 @@ def main():
     for across in filter(None, args.thickness.split(",")):
         doc = tomllib.loads(sphere.read_text())
         diameter = 2.0 * doc["shapes"][0]["radius"]
-        doc["shapes"][0]["medium"] = {"albedo": SPHERE_ALBEDO, "g": 0.0, "mean_free_path": diameter / float(across),
-                                      "eta": args.eta}
-        path = args.out / f"grey_sphere_{across}_eta{args.eta:g}.toml"
+        reduced = 1.0 - args.g * args.albedo  # sigma'_t / sigma_t
+        doc["shapes"][0]["medium"] = {"albedo": args.albedo, "g": args.g,
+                                      "mean_free_path": diameter * reduced / float(across), "eta": args.eta}
+        tag = (f"_albedo{args.albedo:g}" if args.albedo != SPHERE_ALBEDO else "") + (f"_g{args.g:g}" if args.g else "")
+        path = args.out / f"grey_sphere_{across}{tag}_eta{args.eta:g}.toml"
         path.write_text(tomli_w.dumps(doc))
         scenes.append(path)
     scenes += [ROOT / s for s in filter(None, args.scenes.split(","))]
     res = (args.resolution, args.resolution)
 
-    def render(scene: Path, method: str, spp: int, orders=None):
-        out = args.out / f"{scene.stem}_{method}_{spp}{'_orders' + orders if orders else ''}_{args.resolution}.exr"
+    def render(scene: Path, method: str, spp: int, orders=None, seed=None):
+        out = args.out / (f"{scene.stem}_{method}_{spp}{'_orders' + orders if orders else ''}_{args.resolution}"
+                          f"{f'_seed{seed}' if seed else ''}.exr")
         seconds = None
         if not out.exists():
             t = time.perf_counter()
-            render_scene(scene, out, RenderOptions(method=method, spp=spp, resolution=res, orders=orders,
+            render_scene(scene, out, RenderOptions(method=method, spp=spp, resolution=res, orders=orders, seed=seed,
                                                    threads=args.threads, cache_dir=args.cache, quiet=True))
             seconds = time.perf_counter() - t
         return read_exr(out)[0], seconds
@@ -83,7 +91,9 @@ def main():
         sc = C.load_scene(scene)
         b = build_scene(sc, scene, (8, 8))
         thickness, albedo = reduced_thickness(b, 0)
-        ref, _ = render(scene, "volpath", args.ref_spp)
+        # seed 1 is the scene files' own (kept under the name without a seed)
+        ref = np.mean([render(scene, "volpath", args.ref_spp, seed=s if s > 1 else None)[0]
+                       for s in range(1, args.ref_seeds + 1)], axis=0)
         surfaces, _ = render(scene, "volpath", max(1, args.ref_spp // 4), orders="0")
         scattered = ref - surfaces
         mask = scattered.mean(axis=2) > 0.05 * scattered.mean(axis=2).max()

@@ -348,34 +348,34 @@ def test_check_says_where_diffusion_is_poor():
     assert "reduced albedo 0.37" in media["wax_sphere"]["diffusion_poor"]
 
 
-def test_check_says_where_the_point_based_method_reads_low():
-    """pbl's regime ends where the dipole's begins: the marble bunny (73 reduced mean free paths thick, reduced
-    albedo 0.999) reads low in pbl (0.69-0.84 of volpath's scattered light, the dipole 0.96-0.97: docs/pbl.md
-    section 11), the milk glass (3 thick) and the wax sphere (4 thick) do not; the oil sphere (reduced albedo 0.08
-    at most) has no diffusion."""
+def test_check_says_where_the_point_based_method_reads_low(tmp_path):
+    """pbl reads low in a body more than six diffusion lengths thick in half (a marble sphere of radius 3 cm: 7.6 in
+    blue, 0.92 of volpath's scattered light there, the dipole 0.99) and where light spreads beyond the multiple-
+    scattering table (a forward-scattering body 150 mean free paths across: 0.68 with the table's 40, 0.94 with
+    160; docs/pbl.md section 11). The marble bunny (up to 3 diffusion lengths: 1.01-1.08 since the images grew with
+    the body), the milk glass, the wax sphere and the oil sphere are in its regime."""
     root = Path(__file__).resolve().parent.parent / "configs"
     media = {name: json.loads(runner.invoke(app, ["check", str(root / f"{name}.toml"), "--json"]).stdout)["media"][0]
              for name in ("marble_bunny", "milk_glass", "wax_sphere", "oil_sphere")}
-    assert media["marble_bunny"]["pointbased_poor"].startswith("73 reduced mean free paths thick, reduced albedo 0.999")
-    assert media["marble_bunny"]["pointbased_poor"].endswith("--method dipole suits it")
-    assert all(media[name]["pointbased_poor"] == "" for name in ("milk_glass", "wax_sphere", "oil_sphere"))
-    text = runner.invoke(app, ["check", str(root / "marble_bunny.toml")]).stdout
-    assert "pbl: 73 reduced mean free paths thick" in text and "multiple scattering reads low" in text
-    assert "dipole suits it better" in text  # (the marching methods' advice no longer points at pbl)
+    assert all(media[name]["pointbased_poor"] == "" for name in media), media
 
-
-def test_check_names_an_index_matched_body_only_when_thicker(tmp_path):
-    """An index-matched body reads right in pbl at 15 and 30 reduced mean free paths (docs/pbl.md, section 11): a
-    marble sphere behind a null boundary is named from 30 on, behind eta 1.5 from 10 on."""
-    def poor(interface: str, radius_mm: float) -> str:
-        scene = write_scene(tmp_path, {"unit": "mm", "camera": camera((2, 2)),
+    def poor(medium, radius_cm: float, lut=None) -> str:
+        scene = write_scene(tmp_path, {"unit": "cm", "camera": camera((2, 2)),
+                                       "render": {"lut": lut} if lut else {},
                                        "lights": [{"type": "environment", "radiance": 1.0}],
-                                       "shapes": [{"type": "sphere", "radius": radius_mm, "interface": interface,
-                                                   "medium": "marble"}]})
+                                       "shapes": [{"type": "sphere", "radius": radius_cm, "interface": "dielectric",
+                                                   "medium": medium}]})
         return json.loads(runner.invoke(app, ["check", str(scene), "--json"]).stdout)["media"][0]["pointbased_poor"]
 
-    assert poor("null", 3.0) == "" and poor("dielectric", 3.0).startswith("18 reduced mean free paths thick")
-    assert poor("null", 10.0).startswith("60 reduced mean free paths thick")
+    assert poor("marble", 3.0).startswith("half its thickness is 7.6 diffusion lengths (reduced albedo 0.999)")
+    assert poor("marble", 3.0).endswith("--method dipole suits it")
+    assert poor("marble", 2.0) == ""  # 5.1 diffusion lengths
+    forward = {"albedo": 0.9998, "g": 0.8, "mean_free_path": 0.04}  # 150 mean free paths across
+    assert poor(forward, 3.0).endswith("beyond the multiple-scattering table's 40: pbl reads low (docs/pbl.md, "
+                                       "section 11); set [render.lut] extent = 150")
+    assert poor(forward, 3.0, {"extent": 160.0}) == ""
+    text = runner.invoke(app, ["check", str(root / "marble_bunny.toml")]).stdout
+    assert "pbl:" not in text and "dipole suits it better" not in text
 
 
 def test_a_pbl_render_of_a_thick_dense_body_says_it_reads_low(tmp_path):
@@ -391,11 +391,11 @@ def test_a_pbl_render_of_a_thick_dense_body_says_it_reads_low(tmp_path):
         assert r.exit_code == 0, r.output
         return r.stderr
 
-    err = render("cm")  # a marble sphere 2 cm across: 44-60 reduced mean free paths thick
-    assert "medium 'marble': 60 reduced mean free paths thick" in err and "--method dipole suits it" in err, err
-    err = render("mm", 3.0)  # 6 mm across: 13-18 thick, where the dipole read as low as pbl
-    assert "18 reduced mean free paths thick" in err and "dipole reads about as low below 30" in err, err
-    assert "reduced mean free paths" not in render("mm")  # 2 mm across: 4-6 thick
+    err = render("cm", 3.0)  # a marble sphere 6 cm across: half of it 3.5-7.6 diffusion lengths
+    assert "medium 'marble': half its thickness is 7.6 diffusion lengths" in err, err
+    assert "--method dipole suits it" in err, err
+    assert "diffusion lengths" not in render("cm")  # 2 cm across: 44-60 reduced mean free paths, up to 2.5
+    assert "diffusion lengths" not in render("mm")  # 2 mm across
 
 
 def test_check_says_where_the_marching_methods_are_poor():

@@ -98,6 +98,30 @@ class BuiltScene:
         """Boolean mask over surface rows: those with medium m on either side."""
         return (self.surfaces[:, SURF_MEDIUM_IN] == m) | (self.surfaces[:, SURF_MEDIUM_OUT] == m)
 
+    def medium_box(self, m: int) -> np.ndarray | None:
+        """(lo, hi) corners (scene units) of the bounding box of the surfaces that bound medium m (None: none)."""
+        surf = np.flatnonzero(self.surfaces_bounding(m))
+        pts = []
+        if len(self.faces):
+            tri = np.isin(self.tri_surface, surf)
+            if tri.any():
+                pts.append(self.vertices[self.faces[tri]].reshape(-1, 3).astype(float))
+        for s in self.spheres:
+            if int(s[SPH_SURFACE]) in surf:
+                pts.append(sphere_bounds(s))
+        if not pts:
+            return None
+        p = np.concatenate(pts)
+        return np.array([p.min(0), p.max(0)])
+
+    def reflects_into(self, m: int) -> bool:
+        """Whether medium m's boundary reflects light back into it somewhere: a surface bounding it that is not a
+        null boundary or an index-matched dielectric."""
+        s = self.surfaces[self.surfaces_bounding(m)]
+        matched = (s[:, SURF_TYPE] == NULL) | ((s[:, SURF_TYPE] == DIELECTRIC)
+                                               & (s[:, SURF_ETA_IN] == s[:, SURF_ETA_OUT]))
+        return bool(np.any(~matched))
+
 
 def sphere_bounds(row: np.ndarray) -> np.ndarray:
     """(2, 3) bounding box of a spheres-table row."""

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from pbvol_cli import config as C
-from pbvol_cli.geometry.scene_build import MED_SEALED, SPH_SURFACE, sphere_bounds
+from pbvol_cli.geometry.scene_build import MED_SEALED
 
 
 def describe(scene: C.Scene, path: Path) -> dict:
@@ -31,14 +31,14 @@ def describe(scene: C.Scene, path: Path) -> dict:
         st = mi.sigma_a + mi.sigma_s
         mfp = np.where(st > 0, 1.0 / np.maximum(st, 1e-300), np.inf)
         alb = np.where(st > 0, mi.sigma_s / np.maximum(st, 1e-300), 0.0)
-        box = _medium_box(b, k)
+        box = b.medium_box(k)
         obj = float(np.linalg.norm(box[1] - box[0])) if box is not None else float("nan")
         across = obj / mfp
         out["media"].append({"label": mi.label, "albedo": alb.tolist(), "mean_free_path": mfp.tolist(),
                              "g": mi.material.g, "phase": mi.material.phase, "sealed": bool(b.media[k, MED_SEALED]),
                              "object_size": obj, "mean_free_paths_across": across.tolist(),
                              "diffusion_poor": _diffusion_regime(b, k, box),
-                             "pointbased_poor": pointbased_regime(b, k, box),
+                             "pointbased_poor": pointbased_regime(b, k, box, extent),
                              "marching_poor": _marching_regime(b, k, across,
                                                                scene.render.raymarch.shadows_through_dielectrics),
                              "density": _density_text(b, k),
@@ -79,12 +79,12 @@ def _similarity_notes(scene: C.Scene, b) -> list[str]:
 
 DIFFUSION_THICKNESS = 10.0  # reduced mean free paths: a thinner body is far from the dipole's half-space
 DIFFUSION_ALBEDO = 0.9  # reduced albedo below which diffusion is a poor model (docs/dipole.md)
-POINTBASED_THICKNESS = DIFFUSION_THICKNESS  # reduced mean free paths: thicker bodies of high reduced albedo (the
-POINTBASED_ALBEDO = DIFFUSION_ALBEDO  # dipole's regime) read low in pbl (pointbased_regime): grey spheres behind
-# eta 1.5, 15, 30, 60 and 120 thick, read 0.88, 0.83, 0.82 and 0.69 of volpath's scattered light
-DIPOLE_BETTER_THICKNESS = 30.0  # from about here the dipole reads closer (0.89, 0.97 at 30, 60; 0.82 at 15)
-POINTBASED_MATCHED_THICKNESS = 30.0  # the same for a body whose boundary does not reflect: index-matched, the grey
-# spheres read 1.015 and 0.996 at 15 and 30 (a box 1000 thick read low: docs/pbl.md, section 13)
+POINTBASED_ALBEDO = DIFFUSION_ALBEDO  # reduced albedo above which a body diffuses (pointbased_regime)
+POINTBASED_DIFFUSION_LENGTHS = 7.0  # half-thickness in diffusion lengths 1/sigma_tr beyond which pbl reads low:
+# grey spheres behind eta 1.5 read 0.99 of volpath's scattered light at 3.3, 0.96 at 6.6, 0.85 at 10.4 (albedo
+# 0.99); the marble sphere 0.92 in blue at 7.6 (docs/pbl.md, section 11)
+TABLE_REACH = 2.0  # diffusion lengths that light spreads over, against the multiple-scattering table's extent: a
+# grey sphere of g 0.8, 150 mean free paths across, read 0.68 with the table's 40 and 0.94 with 160
 
 
 def _density_text(b, k: int) -> str:
@@ -107,7 +107,7 @@ def reduced_thickness(b, k: int, box=None) -> tuple[np.ndarray, np.ndarray] | No
     dipole nor pbl takes it: check's note says so), without a bounding box or without extinction. box: the body's
     bounding box (None: found here)."""
     mi = b.medium_info[k]
-    box = _medium_box(b, k) if box is None else box
+    box = b.medium_box(k) if box is None else box
     if mi.material.density is not None or mi.material.emission is not None:
         return None
     sp = (1.0 - mi.material.g) * mi.sigma_s
@@ -134,23 +134,14 @@ def _diffusion_regime(b, k: int, box) -> str:
     return ", ".join(why)
 
 
-def _reflects(b, k: int) -> bool:
-    """Whether medium k's boundary reflects light back into it somewhere: a surface bounding it that is not a null
-    boundary or an index-matched dielectric."""
-    from pbvol_cli.geometry.scene_build import DIELECTRIC, NULL, SURF_ETA_IN, SURF_ETA_OUT, SURF_TYPE
-
-    s = b.surfaces[b.surfaces_bounding(k)]
-    matched = (s[:, SURF_TYPE] == NULL) | ((s[:, SURF_TYPE] == DIELECTRIC) & (s[:, SURF_ETA_IN] == s[:, SURF_ETA_OUT]))
-    return bool(np.any(~matched))
-
-
-def pointbased_regime(b, k: int, box=None) -> str:
+def pointbased_regime(b, k: int, box=None, extent: float = 40.0) -> str:
     """Whether the point-based method (--method pbl) renders medium k's scattered light in full: "" where it does,
-    else why not and what to use instead. A body thicker than POINTBASED_THICKNESS reduced mean free paths
-    (POINTBASED_MATCHED_THICKNESS where its boundary does not reflect) in a channel of reduced albedo above
-    POINTBASED_ALBEDO (the dipole's regime) reads low: its multiple scattering and bounced light fall short of
-    volpath's, the more so the thicker the body; from DIPOLE_BETTER_THICKNESS the dipole reads closer
-    (benchmarks/pbl_thickness.py, docs/pbl.md section 11). box: the body's bounding box (None: found here)."""
+    else why not and what to use instead. In a channel of reduced albedo above POINTBASED_ALBEDO, pbl reads low
+    (benchmarks/pbl_thickness.py, docs/pbl.md section 11) where half the body's smallest side is more than
+    POINTBASED_DIFFUSION_LENGTHS diffusion lengths (the multiple term's images, image_planes.py, fitted up to
+    about 7), or where light spreads over more mean free paths than the multiple-scattering table holds: the
+    smaller of TABLE_REACH diffusion lengths and the body's side, beyond `extent` ([render.lut] extent, mean free
+    paths; forward-scattering media diffuse over many). box: the body's bounding box (None: found here)."""
     reduced = reduced_thickness(b, k, box)
     if reduced is None:
         return ""
@@ -158,13 +149,23 @@ def pointbased_regime(b, k: int, box=None) -> str:
     diffusing = albedo > POINTBASED_ALBEDO
     if not np.any(diffusing):
         return ""
-    thick = float(np.max(thickness[diffusing]))
-    if thick <= (POINTBASED_THICKNESS if _reflects(b, k) else POINTBASED_MATCHED_THICKNESS):
-        return ""
-    instead = ("--method dipole suits it" if thick >= DIPOLE_BETTER_THICKNESS else
-               f"--method dipole reads about as low below {DIPOLE_BETTER_THICKNESS:g}")
-    return (f"{thick:.0f} reduced mean free paths thick, reduced albedo {float(np.max(albedo[diffusing])):.3g}: "
-            f"pbl's multiple scattering reads low in a body this thick (docs/pbl.md, section 11); {instead}")
+    mi = b.medium_info[k]
+    transport = mi.sigma_a + (1.0 - mi.material.g) * mi.sigma_s
+    lengths = np.sqrt(3.0 * mi.sigma_a / np.maximum(transport, 1e-300)) * thickness  # 2 R sigma_tr
+    half = float(np.max(0.5 * lengths[diffusing]))
+    if half > POINTBASED_DIFFUSION_LENGTHS:
+        instead = "--method dipole suits it" if _diffusion_regime(b, k, box) == "" else "volpath renders it"
+        return (f"half its thickness is {half:.2g} diffusion lengths (reduced albedo "
+                f"{float(np.max(albedo[diffusing])):.3g}): pbl's multiple scattering reads low in a body this thick "
+                f"(docs/pbl.md, section 11); {instead}")
+    st = mi.sigma_a + mi.sigma_s
+    with np.errstate(divide="ignore", invalid="ignore"):
+        spread = np.minimum(TABLE_REACH * st / np.sqrt(3.0 * mi.sigma_a * transport), thickness * st / transport)
+    reach = float(np.max(spread[diffusing]))
+    if reach > extent:
+        return (f"light spreads over about {reach:.3g} mean free paths, beyond the multiple-scattering table's "
+                f"{extent:g}: pbl reads low (docs/pbl.md, section 11); set [render.lut] extent = {np.ceil(reach):.0f}")
+    return ""
 
 
 MARCHING_DENSE = 20.0  # mean free paths across: a denser high-albedo body makes the VPLs spike (docs/vpl.md)
@@ -208,7 +209,7 @@ def _reach_notes(scene: C.Scene, b) -> list[str]:
                              "(--method pbl)")
             continue
         for k in sealed:
-            box = _medium_box(b, k)
+            box = b.medium_box(k)
             omega = _solid_angle(L, 0.5 * (box[0] + box[1])) if box is not None else None
             if omega is not None and omega < SMALL_LIGHT_SR:
                 notes.append(f"lights[{i}] ({L.type}) subtends {omega:.2g} sr from {b.medium_info[k].label}, which "
@@ -276,23 +277,6 @@ def _medium_label(ref) -> str | None:
     if ref is None:
         return None
     return ref if isinstance(ref, str) else (ref.name or "inline")
-
-
-def _medium_box(b, k: int) -> np.ndarray | None:
-    """(lo, hi) corners of the bounding box of the surfaces that bound medium k (None: no surface found)."""
-    surf = np.flatnonzero(b.surfaces_bounding(k))
-    pts = []
-    if len(b.faces):
-        tri = np.isin(b.tri_surface, surf)
-        if tri.any():
-            pts.append(b.vertices[b.faces[tri]].reshape(-1, 3).astype(float))
-    for s in b.spheres:
-        if int(s[SPH_SURFACE]) in surf:
-            pts.append(sphere_bounds(s))
-    if not pts:
-        return None
-    p = np.concatenate(pts)
-    return np.array([p.min(0), p.max(0)])
 
 
 def _f(v) -> str:

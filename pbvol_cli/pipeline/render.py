@@ -422,13 +422,13 @@ def pbl_media(built, pbl, method: str):
     return built
 
 
-def _note_thick_bodies(built, scene_path):
+def _note_thick_bodies(built, scene_path, extent: float):
     """A note on stderr for each medium whose body pbl renders too dark (check.pointbased_regime): a render that
     reads low where the method is known to, said before it starts."""
     from pbvol_cli.pipeline.check import pointbased_regime
 
     for k, info in enumerate(built.medium_info):
-        why = pointbased_regime(built, k)
+        why = pointbased_regime(built, k, extent=extent)
         if why:
             print(f"note: {scene_path}: medium {info.label!r}: {why}", file=sys.stderr)
 
@@ -445,7 +445,7 @@ def light_side(scene, built, seed, threads, opts, scene_path) -> LightSide:
 
     homogeneous_media_only(built, opts.method, scene_path)
     if opts.method == "pbl":
-        _note_thick_bodies(built, scene_path)
+        _note_thick_bodies(built, scene_path, scene.render.lut.extent)
     pbl = scene.render.pbl
     dipole = opts.method == "dipole"
     if dipole and opts.components:

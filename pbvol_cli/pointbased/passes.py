@@ -20,6 +20,7 @@ from pbvol_cli.multiple_scattering.table import empty_table
 from pbvol_cli.pointbased.bounced import BOUNCED_KERNEL, bounced_samples
 from pbvol_cli.pointbased.camera_pass import render_pbl
 from pbvol_cli.pointbased.flat_faces import medium_faces
+from pbvol_cli.pointbased.image_planes import medium_extrapolation
 from pbvol_cli.pointbased.gather import GatherSettings
 from pbvol_cli.pointbased.light_samples import place_light_samples
 from pbvol_cli.pointbased.volume_samples import SAMPLE_KEYS, SampleSet, returned_samples
@@ -64,9 +65,11 @@ def render_passes(built: BuiltScene, samples, tables: dict, pbl, seed: int, spp:
         return placed
 
     faces = {m: medium_faces(built, m) for m in expanded}  # the flat faces of each medium's boundary
+    image_k = {m: medium_extrapolation(built, m) for m in expanded}  # and its curved parts' image planes
 
     def lit_sets(current) -> dict:
-        return {m: SampleSet(current, m, built.media, expanded[m], pbl.beam_width, faces[m]) for m in expanded}
+        return {m: SampleSet(current, m, built.media, expanded[m], pbl.beam_width, faces[m], image_k[m])
+                for m in expanded}
 
     held = {}  # "lit": the one light-sample set's SampleSets (light_sets 1); "bounced": (first pass, {m: set})
 
@@ -124,14 +127,15 @@ def _bounced_set(built, samples, m: int, lit: SampleSet, tables: tuple, pbl, see
         back = SimpleNamespace(**{k: np.concatenate([getattr(b, k), getattr(back, k)]) for k in SAMPLE_KEYS})
     if len(back.v_len) == 0:
         return None
-    return SampleSet(back, m, built.media, tables, BOUNCED_KERNEL, lit.medium.faces)
+    return SampleSet(back, m, built.media, tables, BOUNCED_KERNEL, lit.medium.faces, lit.medium.image_k)
 
 
 def _reflected(built, m: int, lit: SampleSet, back, tables: tuple, pbl, seed: int, threads: int):
     """The scattered light of medium m that its boundary reflects back, generation after generation (bounced.py),
     as a namespace of v_* arrays, or None."""
     # the returned light's own reflections on the boundary too
-    extra = SampleSet(back, m, built.media, tables, BOUNCED_KERNEL, lit.medium.faces) if len(back.v_len) else None
+    extra = (SampleSet(back, m, built.media, tables, BOUNCED_KERNEL, lit.medium.faces, lit.medium.image_k)
+             if len(back.v_len) else None)
     # the light arriving at the boundary points: one point per gather ray for each estimator (the reflected
     # light is smooth; the boundary points average it)
     gather = GatherSettings(1, pbl.cut_size, pbl.clamp, True, True, True, 1, 1)
@@ -139,7 +143,8 @@ def _reflected(built, m: int, lit: SampleSet, back, tables: tuple, pbl, seed: in
     pool = ThreadPoolExecutor(threads) if threads > 1 else None
     try:
         return bounced_samples(built, caster, pool, threads, m, lit,
-                               lambda smp: SampleSet(smp, m, built.media, tables, pbl.beam_width, lit.medium.faces),
+                               lambda smp: SampleSet(smp, m, built.media, tables, pbl.beam_width,
+                                                     lit.medium.faces, lit.medium.image_k),
                                pbl.bounce_samples, pbl.bounce_generations, max(1, pbl.segments_per_beam // 4),
                                pbl.max_internal_reflections, gather, seed, extra)
     finally:

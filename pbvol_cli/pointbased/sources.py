@@ -27,7 +27,6 @@ Source = namedtuple("Source", ["x", "y", "z", "dx", "dy", "dz", "pr", "pg", "pb"
 Source.__doc__ = """A point source: position, unit direction of its beam, scattered power (RGB, W), and the radius of
 the ball its double scattering is smeared over (scene units)."""
 
-IMAGE_EXTRAPOLATION = 0.25  # transport mean free paths by which the image planes lie beyond the boundary
 NEAR_READ_TRANSPORT = 1.0  # the multiple term reads the table no nearer a source than its extent, and that at most
 # this many transport mean free paths of the densest channel (source_terms)
 FLAT_FACE_EXTRAPOLATION = 0.45  # the same under a flat face of the boundary (flat_faces.py): the slab's furnace
@@ -117,7 +116,8 @@ def source_terms(src, plane, med, q, rclamp, do_double, do_multiple, tabs, split
     if do_multiple:
         # The table's medium is infinite. Corrected by the method of images twice: a mirror image of the source
         # (lobe mirrored) behind the source's boundary plane and another behind P's (the camera segment's nearer
-        # end plane), each plane moved out by IMAGE_EXTRAPOLATION transport mean free paths. Each image gives a
+        # end plane), each plane moved out by med.image_k transport mean free paths (image_planes.py: 0.25 on
+        # small bodies, toward diffusion's 0.7104 on bodies many diffusion lengths thick). Each image gives a
         # factor f = 1 - image / table in [0, 1] (the half-space's response is never negative); P's factor enters
         # as f_P^w, w = (1 - n . n_P) / 2: where both points are under the same plane it is the same image, counted
         # once, while a source under the far side of a body (n_P = -n) gets both (docs/pbl.md). A plane on a flat
@@ -130,9 +130,8 @@ def source_terms(src, plane, med, q, rclamp, do_double, do_multiple, tabs, split
         dp = 2.0 * (dx * ax + dy * ay + dz * az)
         fx, fy, fz = dx - dp * ax, dy - dp * ay, dz - dp * az
         wp = 0.5 * (1.0 - (nx * ax + ny * ay + nz * az)) if image else 1.0
-        k_s = FLAT_FACE_EXTRAPOLATION if image and on_flat_face(med.faces, nx, ny, nz, qn) else IMAGE_EXTRAPOLATION
-        k_p = (FLAT_FACE_EXTRAPOLATION if image_p and on_flat_face(med.faces, ax, ay, az, pplane[3])
-               else IMAGE_EXTRAPOLATION)
+        flat_s = image and on_flat_face(med.faces, nx, ny, nz, qn)
+        flat_p = image_p and on_flat_face(med.faces, ax, ay, az, pplane[3])
         # the table read no nearer the source than its extent, as double scattering's ball: a sample stands for
         # light spread over its kernel, and its table value a hundredth of a mean free path away was a rare spike
         # of hundreds of times the mean (the milk's tails, docs/pbl.md)
@@ -152,10 +151,12 @@ def source_terms(src, plane, med, q, rclamp, do_double, do_multiple, tabs, split
             v = v0
             transport_mfp = 1.0 / max(sig_a[c] + transport_share(kind, g) * sig_s[c], 1e-30)
             if image:
+                k_s = FLAT_FACE_EXTRAPOLATION if flat_s else med.image_k[c]
                 h = 2.0 * (max(qn - (nx * x + ny * y + nz * z), 0.0) + k_s * transport_mfp)
                 vi = scaled_lookup(tabs[c], Pc, st, rx - h * nx, ry - h * ny, rz - h * nz, ex, ey, ez, wx, wy, wz)
                 v *= min(max(1.0 - vi / v0, 0.0), 1.0)
             if image_p and wp > 0.0 and v > 0.0:
+                k_p = FLAT_FACE_EXTRAPOLATION if flat_p else med.image_k[c]
                 h = 2.0 * (max(pplane[3] - (ax * x + ay * y + az * z), 0.0) + k_p * transport_mfp)
                 vi = scaled_lookup(tabs[c], Pc, st, rx - h * ax, ry - h * ay, rz - h * az, fx, fy, fz, wx, wy, wz)
                 v *= min(max(1.0 - vi / v0, 0.0), 1.0) ** wp

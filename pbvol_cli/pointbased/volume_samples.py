@@ -43,9 +43,13 @@ from that sample's start (leg_table; empty: the samples are not grouped in legs)
 # a flat face of a medium's boundary (flat_faces.py): unit normal (3), q (n . x = q on it), tolerance on q
 FACE_COLS = 5
 NO_FACES = np.zeros((0, FACE_COLS))
-Medium = namedtuple("Medium", ["sigma_a", "sigma_s", "phase", "g", "faces"], defaults=(NO_FACES,))
-Medium.__doc__ = """A homogeneous medium for the kernels: sigma_a, sigma_s (3,) in 1/scene unit, phase kind, g, and
-the flat faces of its boundary (k, FACE_COLS) (flat_faces.medium_faces; none by default)."""
+CURVED_EXTRAPOLATION = 0.25  # transport mean free paths by which a curved boundary's image planes lie beyond it
+Medium = namedtuple("Medium", ["sigma_a", "sigma_s", "phase", "g", "faces", "image_k"],
+                    defaults=(NO_FACES, np.full(3, CURVED_EXTRAPOLATION)))
+Medium.__doc__ = """A homogeneous medium for the kernels: sigma_a, sigma_s (3,) in 1/scene unit, phase kind, g, the
+flat faces of its boundary (k, FACE_COLS) (flat_faces.medium_faces; none by default), and image_k, the transport
+mean free paths by which the multiple term's image planes lie beyond its boundary where it is not a flat face
+(sources.source_terms)."""
 Query = namedtuple("Query", ["x", "y", "z", "wx", "wy", "wz", "plane"])
 Query.__doc__ = """The point P where in-scattered radiance is wanted, toward the propagation direction w (toward the
 camera), and P's boundary plane (n_x, n_y, n_z, q) with n . x = q on it (q = inf: none; NO_PLANE)."""
@@ -74,11 +78,13 @@ def nearer_plane(planes, i, px, py, pz):
     return EXIT_N if exit_depth < entry_depth else ENTRY_N
 
 
-def medium_params(media: np.ndarray, m: int, faces: np.ndarray = NO_FACES) -> Medium:
-    """Medium m of a built scene's media table, with the flat faces of its boundary (flat_faces.medium_faces)."""
+def medium_params(media: np.ndarray, m: int, faces: np.ndarray = NO_FACES, image_k: np.ndarray | None = None) -> Medium:
+    """Medium m of a built scene's media table, with the flat faces of its boundary (flat_faces.medium_faces) and
+    its curved boundary's image extrapolation per channel (image_planes.medium_extrapolation; None: 0.25)."""
     row = media[m]
+    k = np.full(3, CURVED_EXTRAPOLATION) if image_k is None else np.asarray(image_k, np.float64)
     return Medium(row[MED_SIGMA_A:MED_SIGMA_A + 3], row[MED_SIGMA_S:MED_SIGMA_S + 3], int(row[MED_PHASE]),
-                  float(row[MED_G]), faces)
+                  float(row[MED_G]), faces, k)
 
 
 def near_field_radius(start, dirs, length, rb, ends_box=None, sigma_t_max: float = math.inf) -> float:
@@ -210,17 +216,18 @@ class SampleSet:
     """One medium's volume samples prepared for the kernels (see the module docstring); .kernel is the bundle."""
 
     def __init__(self, samples, medium: int, media: np.ndarray, tables: tuple, beam_width: float = 1.0,
-                 faces: np.ndarray = NO_FACES):
+                 faces: np.ndarray = NO_FACES, image_k: np.ndarray | None = None):
         """samples: LightSamples (its volume samples of light that has not scattered before reaching the surface
         samples: v_returned == 0) or a namespace of v_* arrays (all taken); media: the built scene's media table;
-        tables: the medium's three tables as MSTable.render_args() (R, G, B); faces: the flat faces of the
-        medium's boundary (flat_faces.medium_faces), in .medium."""
+        tables: the medium's three tables as MSTable.render_args() (R, G, B); faces, image_k: the flat faces of
+        the medium's boundary (flat_faces.medium_faces) and its curved boundary's image extrapolation
+        (image_planes.medium_extrapolation), in .medium."""
         sel = samples.v_medium == medium
         returned = getattr(samples, "v_returned", None)
         if returned is not None:
             sel &= returned == 0
         idx = np.flatnonzero(sel)
-        self.medium = medium_params(media, medium, faces)
+        self.medium = medium_params(media, medium, faces, image_k)
         st = self.medium.sigma_a + self.medium.sigma_s
         albedo = np.where(st > 0, self.medium.sigma_s / np.where(st > 0, st, 1.0), 0.0)
         arrays = [np.ascontiguousarray(a) for a in (samples.v_start, samples.v_dir, samples.v_len,

@@ -196,9 +196,9 @@ def test_a_thick_high_albedo_sphere_stays_bounded_and_near_volpath(tmp_path):
     light. The bounced generations diverged here (pixels of 1e29): bounced beams leaving the boundary at grazing
     angles were amplified by their single scattering's continuation, and the multiple term said 6-13 times more
     light arrived at the boundary than had been scattered. Now the bounced layer is bounded by what volpath's
-    orders 3+ hold, and the image is within a band of volpath's: measured 0.88 0.89 0.81 at this test's settings
-    (0.91 0.93 0.96 while the bounced gather's points sat on the light samples' entries, which read the arriving
-    light high); the band 0.75-1.05 allows for this test's 2 passes and 256 volpath samples."""
+    orders 3+ hold, and the image is within a band of volpath's: measured 1.03 1.04 1.01 at this test's settings
+    since the multiple term's images grow with the body (image_planes.py; 0.88 0.89 0.81 with 0.25 transport mean
+    free paths everywhere); the band 0.9-1.12 allows for this test's 2 passes and 256 volpath samples."""
     scene = {"unit": "cm", "camera": {"position": [0.0, 4.0, 16.0], "look_at": [0.0, 2.0, 0.0], "fov": 35.0,
                                       "resolution": [16, 16]},
              "render": {"spp": 2, "seed": 1, "max_depth": 1000000, "lut": {"particles": 2000}},
@@ -216,4 +216,4 @@ def test_a_thick_high_albedo_sphere_stays_bounded_and_near_volpath(tmp_path):
     assert np.all(layers["bounced"].mean((0, 1)) < ref3.mean((0, 1)))
     ratio = pbl.mean((0, 1)) / ref.mean((0, 1))
     print("marble sphere, pbl / volpath:", ratio)
-    assert np.all((ratio > 0.75) & (ratio < 1.05)), ratio
+    assert np.all((ratio > 0.9) & (ratio < 1.12)), ratio

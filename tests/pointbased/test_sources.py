@@ -7,9 +7,9 @@ from pbvol_cli.multiple_scattering.layout import Layout
 from pbvol_cli.multiple_scattering.table import TableSettings, build_table, scaled_lookup
 from pbvol_cli.physics.phase import phase_eval
 from pbvol_cli.pointbased.inverse_square import attenuated_inv_r2_ball
-from pbvol_cli.pointbased.sources import (FLAT_FACE_EXTRAPOLATION, IMAGE_EXTRAPOLATION, NEAR_READ_TRANSPORT, Source,
-                                          on_flat_face, source_terms)
-from pbvol_cli.pointbased.volume_samples import FACE_COLS, NO_PLANE, Medium, Query
+from pbvol_cli.pointbased.sources import (FLAT_FACE_EXTRAPOLATION, NEAR_READ_TRANSPORT, Source, on_flat_face,
+                                          source_terms)
+from pbvol_cli.pointbased.volume_samples import CURVED_EXTRAPOLATION, FACE_COLS, NO_PLANE, Medium, Query
 
 
 def test_multiple_term_of_a_source_with_its_image_is_never_negative():
@@ -39,7 +39,7 @@ def test_multiple_term_of_a_source_with_its_image_is_never_negative():
         source_terms(Source(*x, *d, 1.0, 1.0, 1.0, 0.05), np.array([0.0, 0.0, 1.0, 0.0] * 2),
                      Medium(sig_a, sig_s, 1, 0.7), Query(*p, *w, NO_PLANE), 0.02, False, True, tabs, 0.0, out_d, out_m)
         r = p - x
-        h = 2.0 * (0.0 - x[2] + IMAGE_EXTRAPOLATION / (0.1 + 0.3 * 0.9))  # the plane moved out by z_b
+        h = 2.0 * (0.0 - x[2] + CURVED_EXTRAPOLATION / (0.1 + 0.3 * 0.9))  # the plane moved out by z_b
         e = np.array([d[0], d[1], -d[2]])
         plain = (scaled_lookup(tab, 1.0, 1.0, r[0], r[1], r[2], d[0], d[1], d[2], w[0], w[1], w[2])
                  - scaled_lookup(tab, 1.0, 1.0, r[0], r[1], r[2] - h, e[0], e[1], e[2], w[0], w[1], w[2]))
@@ -84,7 +84,7 @@ def test_each_source_point_takes_the_nearer_of_its_beams_two_boundary_planes():
 def test_multiple_term_mirrors_the_source_in_the_camera_points_plane_too():
     """The multiple term's second image, behind P's own boundary plane: under the source's plane (the same
     plane) it changes nothing; across a slab (P under the far face, n_P = -n) the factor 1 - image / table of
-    each plane multiplies the table's value, both planes moved out by IMAGE_EXTRAPOLATION transport mean free
+    each plane multiplies the table's value, both planes moved out by CURVED_EXTRAPOLATION transport mean free
     paths. (Mirrored in its own plane alone, a source lit on a thick body's far side reached P as if the body
     were the half-space behind that plane: 3.9x volpath's 3+ behind an index-matched sphere lit from the back.)"""
     lay = Layout(extent=10.0, n_rho=16, n_z=32, n_theta=9, n_phi=9, kill_radius=20.0)
@@ -105,7 +105,7 @@ def test_multiple_term_mirrors_the_source_in_the_camera_points_plane_too():
     p_near = np.array([0.4, 0.2, -0.5])
     assert multiple(x, p_near, top) == multiple(x, p_near, NO_PLANE) > 0
     p_far = np.array([0.4, 0.6, -2.6])  # 0.4 above the bottom face
-    zb = IMAGE_EXTRAPOLATION / (0.05 + 0.95)
+    zb = CURVED_EXTRAPOLATION / (0.05 + 0.95)
     r = p_far - x
 
     def look(rr, dd):
@@ -170,7 +170,7 @@ def test_a_wide_source_is_read_no_farther_than_a_transport_mean_free_path():
 def test_images_in_a_flat_face_lie_farther_out():
     """Both images (the source's plane and P's) move out by FLAT_FACE_EXTRAPOLATION transport mean free paths
     where the plane is one of the medium's flat faces (either orientation, within the face's tolerance), by
-    IMAGE_EXTRAPOLATION elsewhere: the same value as the formula with each distance, and more light under the
+    CURVED_EXTRAPOLATION elsewhere: the same value as the formula with each distance, and more light under the
     face (an index-matched slab read 0.75 of volpath with the curved bodies' distance under its faces)."""
     lay = Layout(extent=10.0, n_rho=16, n_z=32, n_theta=9, n_phi=9, kill_radius=20.0)
     table, _ = build_table(0.95, 0.0, 1, TableSettings(particles=20000, layout=lay, sh_order=8))
@@ -199,7 +199,7 @@ def test_images_in_a_flat_face_lie_farther_out():
                           [1.0, 0.0, 0.0, 0.0, 1e-3]])  # tilted
     assert face.shape[1] == elsewhere.shape[1] == FACE_COLS
     assert multiple(elsewhere) == multiple(np.zeros((0, FACE_COLS)))
-    assert multiple(elsewhere) == pytest.approx(expected(IMAGE_EXTRAPOLATION), rel=1e-9)
+    assert multiple(elsewhere) == pytest.approx(expected(CURVED_EXTRAPOLATION), rel=1e-9)
     assert multiple(face) == pytest.approx(expected(FLAT_FACE_EXTRAPOLATION), rel=1e-9)
     assert multiple(face) > 1.05 * multiple(elsewhere) > 0  # (the farther image takes less away)
 
