@@ -3,7 +3,7 @@
 
     .venv/bin/python benchmarks/pbl_thickness.py [--thickness 15,30,60,120,240] [--eta 1.5] [--albedo 0.999] [--g 0]
         [--scenes configs/marble_bunny.toml] [--methods pbl,dipole] [--resolution 32] [--spp 8] [--ref-spp 1024]
-        [--ref-seeds 8] [--out bench-out/pbl_thickness] [--threads 2] [--cache DIR]
+        [--ref-seeds 8] [--extent auto] [--out bench-out/pbl_thickness] [--threads 2] [--cache DIR]
 
 benchmarks/scenes/marble_sphere.toml (a sphere of radius 3 cm behind eta 1.5 over a floor, under a sphere light)
 with its marble replaced by a grey medium of --albedo, --g and index --eta whose mean free path makes the sphere
@@ -15,7 +15,8 @@ volpath with no volume scattering (--orders 0: the surfaces alone, at a quarter 
 --methods at --spp. Prints the body's thickness and reduced albedo as `pbvol check` reads them
 (check.reduced_thickness), then per method its time and the ratio to volpath (R, G, B) of the image's mean and of
 the scattered light's: the image less volpath's surfaces, over the pixels where volpath's scattered light is above
-5 % of its brightest. Each render is kept in --out and reused when there.
+5 % of its brightest. --extent sets every scene's [render.lut] extent for the methods (their renders are named
+with _extent<e>; the volpath references are the same). Each render is kept in --out and reused when there.
 """
 
 from __future__ import annotations
@@ -53,6 +54,8 @@ def main():
     ap.add_argument("--spp", type=int, default=8)
     ap.add_argument("--ref-spp", type=int, default=1024)
     ap.add_argument("--ref-seeds", type=int, default=8, help="volpath renders averaged for the reference")
+    ap.add_argument("--extent", default=None, help="[render.lut] extent for the methods, mean free paths (default: "
+                    "each scene's own, \"auto\" unless it sets one)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--out", type=Path, default=ROOT / "bench-out" / "pbl_thickness")
     ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
@@ -74,10 +77,19 @@ def main():
     res = (args.resolution, args.resolution)
 
     def render(scene: Path, method: str, spp: int, orders=None, seed=None):
+        tag = f"_extent{args.extent}" if args.extent and method != "volpath" else ""
         out = args.out / (f"{scene.stem}_{method}_{spp}{'_orders' + orders if orders else ''}_{args.resolution}"
-                          f"{f'_seed{seed}' if seed else ''}.exr")
+                          f"{f'_seed{seed}' if seed else ''}{tag}.exr")
         seconds = None
         if not out.exists():
+            if tag:  # the scene with the table's extent set, in a folder of --out (files it names by a relative
+                # path are not rewritten: for scenes without any, as the grey spheres)
+                doc = tomllib.loads(scene.read_text())
+                doc.setdefault("render", {}).setdefault("lut", {})["extent"] = (
+                    args.extent if args.extent == "auto" else float(args.extent))
+                (args.out / tag[1:]).mkdir(exist_ok=True)
+                scene = args.out / tag[1:] / scene.name
+                scene.write_text(tomli_w.dumps(doc))
             t = time.perf_counter()
             render_scene(scene, out, RenderOptions(method=method, spp=spp, resolution=res, orders=orders, seed=seed,
                                                    threads=args.threads, cache_dir=args.cache, quiet=True))

@@ -26,6 +26,7 @@ from pydantic import (
     BeforeValidator,
     ConfigDict,
     Field,
+    PlainValidator,
     ValidationError,
     WithJsonSchema,
     field_validator,
@@ -58,6 +59,20 @@ Num = Annotated[float, NoCoercion()]
 Int = Annotated[int, NoCoercion()]
 Bool = Annotated[bool, NoCoercion()]
 RGB = Annotated[tuple[Num, Num, Num], BeforeValidator(_rgb), _rgb_schema()]
+
+
+
+def _auto_or_positive(value: Any) -> float | str:
+    if value == "auto":
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        raise ValueError(f'expected a number > 0 or "auto", got {value!r}')
+    return float(value)
+
+
+# A setting that is a positive number or "auto" (chosen per medium): one error message for both.
+AutoOrPositive = Annotated[float | Literal["auto"], PlainValidator(_auto_or_positive),
+                           WithJsonSchema({"anyOf": [{"type": "number", "exclusiveMinimum": 0}, {"const": "auto"}]})]
 
 # Geometry's numbers (positions, sizes, scale factors) within +-MAX_COORD: beyond it the single-precision geometry
 # the ray tracer holds has no precision left (and at 3e38 it overflows).
@@ -355,7 +370,10 @@ class LutSettings(Strict):
     collision_budget: Int = Field(80_000_000, ge=100_000, le=10**12, description="collisions simulated per table when "
                                   "particles is not given")
     seed: Int = Field(0, ge=0, le=MAX_SEED, description="the simulation's random seed")
-    extent: Num = Field(40.0, gt=0, description="table half-size, mean free paths (light beyond it is lost)")
+    extent: AutoOrPositive = Field(
+        "auto", description="table half-size, mean free paths (light diffusing beyond it is lost to pbl); "
+        "\"auto\": per medium, what its body needs, from 40 (two diffusion lengths or the body's smallest side, "
+        "whichever is less, up to 320: multiple_scattering/extent.py)")
     sh_order: Int = Field(12, ge=2, le=24, description="spherical-harmonics order of the stored lobes")
     merge_tol: Num = Field(0.05, ge=0, description="relative difference of lobe shapes below which neighbouring "
                              "cells share one (quadtree merge)")

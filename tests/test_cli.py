@@ -216,11 +216,13 @@ def test_json_summaries_for_scripts(tmp_path):
     assert s["method"] == "volpath" and s["spp"] == 2 and s["output"] == str(tmp_path / "x.exr")
 
 
-def test_check_notes_a_medium_thicker_than_the_table(tmp_path):
+def test_check_notes_nothing_of_the_table_where_light_stays_near_its_entry(tmp_path):
+    """A body 2000 mean free paths across of albedo 0.99 spreads its light over about 12 mean free paths (two
+    diffusion lengths): the default table holds it and check notes nothing of the table."""
     thick = _with_shape(medium={"albedo": 0.99, "mean_free_path": 0.001}, radius=1.0)
     d = json.loads(runner.invoke(app, ["check", str(write_scene(tmp_path, thick)), "--json"]).stdout)
     assert d["media"][0]["mean_free_paths_across"][0] > 1000
-    assert any("beyond the multiple-scattering table" in n for n in d["notes"])
+    assert not any("table" in n for n in d["notes"]) and "table" not in d["media"][0]["pointbased_poor"]
     assert not json.loads(runner.invoke(app, ["check", str(write_scene(tmp_path, GOOD)), "--json"]).stdout)["notes"]
 
 
@@ -371,9 +373,17 @@ def test_check_says_where_the_point_based_method_reads_low(tmp_path):
     assert poor("marble", 3.0).endswith("--method dipole suits it")
     assert poor("marble", 2.0) == ""  # 5.1 diffusion lengths
     forward = {"albedo": 0.9998, "g": 0.8, "mean_free_path": 0.04}  # 150 mean free paths across
-    assert poor(forward, 3.0).endswith("beyond the multiple-scattering table's 40: pbl reads low (docs/pbl.md, "
-                                       "section 11); set [render.lut] extent = 150")
-    assert poor(forward, 3.0, {"extent": 160.0}) == ""
+    assert poor(forward, 3.0, {"extent": 40.0}).endswith("beyond the multiple-scattering table's 40: pbl reads low "
+                                                         "(docs/pbl.md, section 11); set [render.lut] extent = 150")
+    assert poor(forward, 3.0) == "" and poor(forward, 3.0, {"extent": 160.0}) == ""  # "auto": 160
+    scene = write_scene(tmp_path, {"unit": "cm", "camera": camera((2, 2)),
+                                   "lights": [{"type": "environment", "radiance": 1.0}],
+                                   "shapes": [{"type": "sphere", "radius": 3.0, "medium": forward}]})
+    assert "multiple-scattering table: 160 mean free paths in half" in runner.invoke(app, ["check", str(scene)]).stdout
+    # a body whose light would spread over 600 mean free paths (two diffusion lengths: 1150): beyond auto's 320
+    farther = {"albedo": 0.99999, "g": 0.9, "mean_free_path": 0.01}
+    assert poor(farther, 3.0).endswith("beyond the multiple-scattering table's 320: pbl reads low (docs/pbl.md, "
+                                       "section 11); set [render.lut] extent = 600")
     text = runner.invoke(app, ["check", str(root / "marble_bunny.toml")]).stdout
     assert "pbl:" not in text and "dipole suits it better" not in text
 

@@ -27,7 +27,8 @@ SCENE = {
     "camera": {"position": [0.0, 2.0, 8.0], "look_at": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0], "fov": 40.0,
                "resolution": [8, 8]},
     "render": {"spp": 1, "seed": 3, "max_depth": 20, "volpath": {"rr_depth": 4},
-               "pbl": {"surface_samples": 100, "segments_per_beam": 2, "kmax": 2}, "lut": {"particles": 2000}},
+               "pbl": {"surface_samples": 100, "segments_per_beam": 2, "kmax": 2},
+               "lut": {"particles": 2000, "extent": "auto"}},
     "materials": {"jelly": {"albedo": [0.9, 0.8, 0.7], "mean_free_path": 0.5, "g": 0.3, "eta": 1.33}},
     "lights": [
         {"type": "point", "position": [0.0, 5.0, 0.0], "intensity": 3.0},

@@ -114,6 +114,11 @@ class BuiltScene:
         p = np.concatenate(pts)
         return np.array([p.min(0), p.max(0)])
 
+    def medium_side(self, m: int) -> float | None:
+        """The smallest side (scene units) of medium_box(m) (None: no box)."""
+        box = self.medium_box(m)
+        return None if box is None else float(np.min(box[1] - box[0]))
+
     def reflects_into(self, m: int) -> bool:
         """Whether medium m's boundary reflects light back into it somewhere: a surface bounding it that is not a
         null boundary or an index-matched dielectric."""

@@ -8,6 +8,7 @@ import numpy as np
 
 from pbvol_cli import config as C
 from pbvol_cli.geometry.scene_build import MED_SEALED
+from pbvol_cli.multiple_scattering.extent import DEFAULT_EXTENT, light_spread, table_extents
 
 
 def describe(scene: C.Scene, path: Path) -> dict:
@@ -39,6 +40,8 @@ def describe(scene: C.Scene, path: Path) -> dict:
                              "object_size": obj, "mean_free_paths_across": across.tolist(),
                              "diffusion_poor": _diffusion_regime(b, k, box),
                              "pointbased_poor": pointbased_regime(b, k, box, extent),
+                             "table_extent": table_extents(mi.sigma_a, mi.sigma_s, mi.material.g,
+                                                           _smallest_side(box), extent).tolist(),
                              "marching_poor": _marching_regime(b, k, across,
                                                                scene.render.raymarch.shadows_through_dielectrics),
                              "density": _density_text(b, k),
@@ -47,11 +50,6 @@ def describe(scene: C.Scene, path: Path) -> dict:
             out["notes"].append(f"{mi.label}: heterogeneous or emissive: --method volpath renders it, "
                                 "--method raymarch approximates it (emission and single scattering), --method vpl "
                                 "adds its multiple scattering; pbl and dipole take homogeneous, non-emissive media")
-        thickest = float(np.max(across, where=np.isfinite(across), initial=0.0))
-        if thickest > 2.0 * extent:
-            out["notes"].append(f"{mi.label}: {thickest:.3g} mean free paths across, beyond the "
-                                f"multiple-scattering table's {2.0 * extent:g} ([render.lut] extent {extent:g}): pbl "
-                                "loses the light that diffuses farther (docs/pbl.md)")
     out["notes"] += _reach_notes(scene, b)
     out["notes"] += _similarity_notes(scene, b)
     return out
@@ -83,8 +81,6 @@ POINTBASED_ALBEDO = DIFFUSION_ALBEDO  # reduced albedo above which a body diffus
 POINTBASED_DIFFUSION_LENGTHS = 7.0  # half-thickness in diffusion lengths 1/sigma_tr beyond which pbl reads low:
 # grey spheres behind eta 1.5 read 0.99 of volpath's scattered light at 3.3, 0.96 at 6.6, 0.85 at 10.4 (albedo
 # 0.99); the marble sphere 0.92 in blue at 7.6 (docs/pbl.md, section 11)
-TABLE_REACH = 2.0  # diffusion lengths that light spreads over, against the multiple-scattering table's extent: a
-# grey sphere of g 0.8, 150 mean free paths across, read 0.68 with the table's 40 and 0.94 with 160
 
 
 def _density_text(b, k: int) -> str:
@@ -114,7 +110,12 @@ def reduced_thickness(b, k: int, box=None) -> tuple[np.ndarray, np.ndarray] | No
     tp = mi.sigma_a + sp
     if box is None or not np.any(tp > 0):
         return None
-    return float(np.min(box[1] - box[0])) * tp, np.where(tp > 0, sp / np.maximum(tp, 1e-300), 1.0)
+    return _smallest_side(box) * tp, np.where(tp > 0, sp / np.maximum(tp, 1e-300), 1.0)
+
+
+def _smallest_side(box) -> float | None:
+    """The smallest side of a (lo, hi) box (None: no box)."""
+    return None if box is None else float(np.min(box[1] - box[0]))
 
 
 def _diffusion_regime(b, k: int, box) -> str:
@@ -134,14 +135,15 @@ def _diffusion_regime(b, k: int, box) -> str:
     return ", ".join(why)
 
 
-def pointbased_regime(b, k: int, box=None, extent: float = 40.0) -> str:
+def pointbased_regime(b, k: int, box=None, extent: float | str = "auto") -> str:
     """Whether the point-based method (--method pbl) renders medium k's scattered light in full: "" where it does,
     else why not and what to use instead. In a channel of reduced albedo above POINTBASED_ALBEDO, pbl reads low
     (benchmarks/pbl_thickness.py, docs/pbl.md section 11) where half the body's smallest side is more than
     POINTBASED_DIFFUSION_LENGTHS diffusion lengths (the multiple term's images, image_planes.py, fitted up to
     about 7), or where light spreads over more mean free paths than the multiple-scattering table holds: the
-    smaller of TABLE_REACH diffusion lengths and the body's side, beyond `extent` ([render.lut] extent, mean free
-    paths; forward-scattering media diffuse over many). box: the body's bounding box (None: found here)."""
+    smaller of extent.TABLE_REACH diffusion lengths and the body's side, beyond the table's extent (`extent`:
+    [render.lut] extent, a number of mean free paths or "auto", which reaches as far up to extent.AUTO_EXTENT_MAX).
+    box: the body's bounding box (None: found here)."""
     reduced = reduced_thickness(b, k, box)
     if reduced is None:
         return ""
@@ -158,13 +160,15 @@ def pointbased_regime(b, k: int, box=None, extent: float = 40.0) -> str:
         return (f"half its thickness is {half:.2g} diffusion lengths (reduced albedo "
                 f"{float(np.max(albedo[diffusing])):.3g}): pbl's multiple scattering reads low in a body this thick "
                 f"(docs/pbl.md, section 11); {instead}")
-    st = mi.sigma_a + mi.sigma_s
-    with np.errstate(divide="ignore", invalid="ignore"):
-        spread = np.minimum(TABLE_REACH * st / np.sqrt(3.0 * mi.sigma_a * transport), thickness * st / transport)
-    reach = float(np.max(spread[diffusing]))
-    if reach > extent:
+    side = _smallest_side(box) if box is not None else b.medium_side(k)
+    spread = light_spread(mi.sigma_a, mi.sigma_s, mi.material.g, side)
+    held = table_extents(mi.sigma_a, mi.sigma_s, mi.material.g, side, extent)
+    short = diffusing & (spread > held)
+    if np.any(short):
+        reach = float(np.max(spread[short]))
         return (f"light spreads over about {reach:.3g} mean free paths, beyond the multiple-scattering table's "
-                f"{extent:g}: pbl reads low (docs/pbl.md, section 11); set [render.lut] extent = {np.ceil(reach):.0f}")
+                f"{float(np.min(held[short])):g}: pbl reads low (docs/pbl.md, section 11); set [render.lut] "
+                f"extent = {np.ceil(reach):.0f}")
     return ""
 
 
@@ -256,6 +260,10 @@ def summarize(scene: C.Scene, path: Path) -> str:
                      f"{d['unit']}, g {m['g']:g}, phase {m['phase']}"
                      + (", sealed (no light reaches it directly)" if m["sealed"] else ""))
         lines.append(f"      object size {m['object_size']:.4g} = {_f(m['mean_free_paths_across'])} mean free paths")
+        if any(e != DEFAULT_EXTENT for e in m["table_extent"]):
+            ext = m["table_extent"]
+            lines.append(f"      multiple-scattering table: {ext[0]:g} mean free paths in half" if len(set(ext)) == 1
+                         else f"      multiple-scattering tables: {_f(ext)} mean free paths in half")
         if m["density"] != "homogeneous" or m["emission"]:
             lines.append(f"      density: {m['density']}" + (f"; emission {_f(m['emission'])}" if m["emission"]
                                                                else ""))

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from pbvol_cli.config import LutSettings
+from pbvol_cli.multiple_scattering.extent import DEFAULT_EXTENT, table_extents
 from pbvol_cli.multiple_scattering.layout import Layout
 from pbvol_cli.multiple_scattering.table import MSTable, TableSettings, build_table, resolve_particles
 from pbvol_cli.pipeline.cache import cached_entry, key_of
@@ -26,12 +27,25 @@ class TableResult:
     seconds: float
 
 
-def table_settings(lut: LutSettings, particles: int | None = None, seed: int | None = None) -> TableSettings:
-    """The table builder's settings from a scene's [render.lut] (particles and seed: command-line overrides)."""
+def table_settings(lut: LutSettings, particles: int | None = None, seed: int | None = None,
+                   extent: float | None = None) -> TableSettings:
+    """The table builder's settings from a scene's [render.lut] (particles and seed: command-line overrides;
+    extent, mean free paths: the one table_groups chose, else lut.extent's number or DEFAULT_EXTENT)."""
+    if extent is None:
+        extent = DEFAULT_EXTENT if lut.extent == "auto" else float(lut.extent)
     return TableSettings(particles=particles or lut.particles, collision_budget=lut.collision_budget,
                          seed=lut.seed if seed is None else seed,
-                         layout=Layout(extent=lut.extent, kill_radius=2.0 * lut.extent),
+                         layout=Layout(extent=extent, kill_radius=2.0 * extent),
                          sh_order=lut.sh_order, merge_tol=lut.merge_tol)
+
+
+def table_groups(sigma_a: np.ndarray, sigma_s: np.ndarray, g: float, side: float | None, lut: LutSettings,
+                 particles: int | None = None, seed: int | None = None) -> list[tuple[float, list[int], TableSettings]]:
+    """A medium's tables as (albedo, the RGB channels that read it, its settings), its extent from lut.extent and
+    the body's smallest side (scene units; None: unknown) as multiple_scattering/extent.py says."""
+    extents = table_extents(sigma_a, sigma_s, g, side, lut.extent)
+    return [(alpha, channels, table_settings(lut, particles, seed, float(extents[channels[0]])))
+            for alpha, channels in channel_tables(sigma_a, sigma_s)]
 
 
 def table_path(cache: Path, alpha: float, g: float, phase_kind: int, settings: TableSettings) -> Path:

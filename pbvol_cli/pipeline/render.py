@@ -437,7 +437,7 @@ def light_side(scene, built, seed, threads, opts, scene_path) -> LightSide:
     """The light side of a pbl or dipole render from the cache (built and stored when missing)."""
     from pbvol_cli.geometry.scene_build import MED_G
     from pbvol_cli.pipeline.cache import cache_dir
-    from pbvol_cli.pipeline.lut import get_table, table_settings
+    from pbvol_cli.pipeline.lut import get_table, table_groups
     from pbvol_cli.pipeline.samples import get_light_samples
     from pbvol_cli.physics.phase import KINDS
     from pbvol_cli.pointbased.camera_pass import COMPONENTS
@@ -480,14 +480,15 @@ def light_side(scene, built, seed, threads, opts, scene_path) -> LightSide:
     tables, table_names = {}, {}
     wanted = any(c in pbl.components for c in TABLE_COMPONENTS)
     for m, info in enumerate(built.medium_info):
-        sig_a, sig_s = built.medium_sigmas(m)
-        st = sig_a + sig_s
+        tables[m], table_names[m] = [None] * 3, [None] * 3
+        if not wanted:
+            continue
         g = float(built.media[m, MED_G])  # (the material's, or its similarity transform's)
-        found = [get_table(round(float(sig_s[c] / st[c]), 12), g, KINDS[info.material.phase],
-                           table_settings(scene.render.lut), cache) if wanted and st[c] > 0 else None
-                 for c in range(3)]
-        tables[m] = [r.table if r else None for r in found]
-        table_names[m] = [r.path.name if r else None for r in found]
+        for alpha, channels, settings in table_groups(*built.medium_sigmas(m), g, built.medium_side(m),
+                                                      scene.render.lut):
+            r = get_table(alpha, g, KINDS[info.material.phase], settings, cache)
+            for c in channels:
+                tables[m][c], table_names[m][c] = r.table, r.path.name
     stages["tables_s"] = time.perf_counter() - t0
     stages["tables_peak_mb"] = peak_memory_mb()
     return LightSide(pbl, res, tables, table_names, entry, cache, stages, built)

@@ -1,13 +1,21 @@
 """The precompute-lut stage: cache hits, misses, damaged entries, and the command line."""
 
+from pathlib import Path
+
 import numpy as np
 from typer.testing import CliRunner
 
 from conftest import camera, write_scene
+from pbvol_cli import config as C
+from pbvol_cli.geometry.scene_build import MED_G, build_scene
 from pbvol_cli.main import app
+from pbvol_cli.multiple_scattering.extent import DEFAULT_EXTENT
 from pbvol_cli.multiple_scattering.layout import Layout
 from pbvol_cli.multiple_scattering.table import TableSettings
-from pbvol_cli.pipeline.lut import channel_tables, get_table
+from pbvol_cli.pipeline.lut import channel_tables, get_table, table_groups
+from pbvol_cli.pipeline.render import pbl_media
+
+CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
 SET = TableSettings(particles=3000, layout=Layout(extent=6.0, n_rho=8, n_z=16, n_theta=6, n_phi=6,
                                                   kill_radius=12.0), sh_order=4)
@@ -74,3 +82,39 @@ def test_cli_scene_lists_every_medium_and_bad_input_is_one_line(tmp_path):
     bad.write_text("albedo = 2\nmean_free_path = 1\n")
     r = runner.invoke(app, ["precompute-lut", str(bad), "--cache-dir", str(tmp_path / "c")])
     assert r.exit_code == 1 and r.stderr.strip().count("\n") == 0 and "albedo" in r.stderr
+
+
+def test_every_example_keeps_the_default_table():
+    """The examples' bodies spread their light over less than 40 mean free paths: their tables (and the images
+    docs/pbl.md measured) are those of the fixed default."""
+    for path in sorted(CONFIGS.glob("*.toml")):
+        scene = C.load_scene(path)
+        b = pbl_media(build_scene(scene, path, (8, 8)), scene.render.pbl, "pbl")
+        for m in range(len(b.medium_info)):
+            if b.medium_info[m].material.density is not None:
+                continue
+            for _, _, settings in table_groups(*b.medium_sigmas(m), float(b.media[m, MED_G]), b.medium_side(m),
+                                               scene.render.lut):
+                assert settings.layout.extent == DEFAULT_EXTENT, (path.stem, settings.layout.extent)
+
+
+def test_precompute_builds_the_wider_table_a_thick_forward_scattering_body_renders_with(tmp_path):
+    """A sphere of g 0.8, 150 mean free paths across: precompute-lut builds a table of 160 mean free paths in half
+    (extent "auto"), and the pbl render reads that table and no other."""
+    scene = {"unit": "cm", "camera": camera((2, 2)),
+             "render": {"spp": 1, "lut": {"particles": 2000},
+                        "pbl": {"surface_samples": 64, "segments_per_beam": 2}},
+             "lights": [{"type": "environment", "radiance": 1.0}],
+             "shapes": [{"type": "sphere", "radius": 3.0, "interface": "dielectric",
+                         "medium": {"albedo": 0.9998, "g": 0.8, "mean_free_path": 0.04}}]}
+    path = write_scene(tmp_path, scene)
+    cache = ["--cache-dir", str(tmp_path / "c")]
+    r = runner.invoke(app, ["precompute-lut", str(path), *cache])
+    assert r.exit_code == 0, r.output
+    assert "160 mean free paths in half" in r.stdout, r.stdout
+    staged = sorted(p.name for p in (tmp_path / "c" / "lut").glob("*.npz"))
+    assert len(staged) == 1
+    r = runner.invoke(app, ["render", str(path), "--method", "pbl", "-o", str(tmp_path / "o.exr"), "-q",
+                            "--components", "multiple", *cache])
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in (tmp_path / "c" / "lut").glob("*.npz")) == staged
