@@ -15,7 +15,8 @@ half-thickness in diffusion lengths, x = sigma_tr R, sigma_tr = sqrt(3 sigma_a s
 both fitted on grey spheres of albedo 0.999 and 0.99 from 15 to 240 reduced mean free paths thick, and only in
 bodies thicker than GATE reduced mean free paths (a smoothstep between its two ends): the examples pbl was
 measured on are at most 7 thick and keep 0.25. A non-absorbing body (x = 0) keeps 0.25 at any size. Flat faces
-keep their own value (flat_faces.py, sources.FLAT_FACE_EXTRAPOLATION).
+(flat_faces.py) start from their own value, volume_samples.FLAT_FACE_EXTRAPOLATION (the slab's furnace), and grow by the
+same law toward the same limit: a thick body is flat on the scale light spreads over whatever its faces' shape.
 """
 
 from __future__ import annotations
@@ -24,7 +25,8 @@ import numpy as np
 
 from pbvol_cli.geometry.scene_build import BuiltScene
 from pbvol_cli.pointbased.sources import transport_share
-from pbvol_cli.pointbased.volume_samples import CURVED_EXTRAPOLATION, medium_params
+from pbvol_cli.pointbased.volume_samples import (CURVED_EXTRAPOLATION, DEFAULT_IMAGE_K, FLAT_FACE_EXTRAPOLATION,
+                                                 medium_params)
 
 MILNE_EXTRAPOLATION = 0.7104  # transport mean free paths: diffusion's extrapolated flat, index-matched boundary
 REFLECTING_SCALE = 4.0  # diffusion lengths of half-thickness over which k nears the Milne value (boundary reflects)
@@ -32,26 +34,42 @@ MATCHED_SCALE = 4.86  # the same behind a null or index-matched boundary (a late
 GATE = (8.0, 15.0)  # reduced mean free paths thick: below the first, 0.25; from the second, the whole growth
 
 
-def curved_extrapolation(sigma_a: np.ndarray, sigma_s: np.ndarray, share: float, size: float,
-                         reflects: bool) -> np.ndarray:
-    """k per channel (3,) for a body `size` thick along its thinnest axis (scene units) of sigma_a, sigma_s (3,)
-    (1/scene unit) whose phase function's transport share is `share` (sources.transport_share); reflects: whether
-    its boundary reflects light back into it (BuiltScene.reflects_into)."""
+def image_growth(sigma_a: np.ndarray, sigma_s: np.ndarray, share: float, size: float, reflects: bool) -> np.ndarray:
+    """The share (3,) in [0, 1] of the way from a small body's extrapolation to the Milne value that a body `size`
+    thick along its thinnest axis (scene units) of sigma_a, sigma_s (3,) (1/scene unit) has gone, its phase
+    function's transport share `share` (sources.transport_share); reflects: whether its boundary reflects light
+    back into it (BuiltScene.reflects_into)."""
     transport = sigma_a + share * sigma_s  # sigma'_t
     thick = size * transport  # reduced mean free paths
     x = np.sqrt(3.0 * sigma_a * transport) * 0.5 * size  # half the thickness in diffusion lengths
     t = np.clip((thick - GATE[0]) / (GATE[1] - GATE[0]), 0.0, 1.0)
     gate = t * t * (3.0 - 2.0 * t)
     rise = 1.0 - (np.exp(-x / REFLECTING_SCALE) if reflects else np.exp(-(x / MATCHED_SCALE) ** 2))
-    return CURVED_EXTRAPOLATION + (MILNE_EXTRAPOLATION - CURVED_EXTRAPOLATION) * gate * rise
+    return gate * rise
+
+
+def curved_extrapolation(sigma_a: np.ndarray, sigma_s: np.ndarray, share: float, size: float,
+                         reflects: bool) -> np.ndarray:
+    """k per channel (3,) under the curved parts of the boundary of a body as image_growth takes it."""
+    grown = image_growth(sigma_a, sigma_s, share, size, reflects)
+    return CURVED_EXTRAPOLATION + (MILNE_EXTRAPOLATION - CURVED_EXTRAPOLATION) * grown
+
+
+def flat_extrapolation(sigma_a: np.ndarray, sigma_s: np.ndarray, share: float, size: float,
+                       reflects: bool) -> np.ndarray:
+    """k per channel (3,) under the flat faces of the same body: from FLAT_FACE_EXTRAPOLATION toward the Milne
+    value, by the same growth."""
+    grown = image_growth(sigma_a, sigma_s, share, size, reflects)
+    return FLAT_FACE_EXTRAPOLATION + (MILNE_EXTRAPOLATION - FLAT_FACE_EXTRAPOLATION) * grown
 
 
 def medium_extrapolation(bs: BuiltScene, m: int) -> np.ndarray:
-    """curved_extrapolation of medium m's body in a built scene (its bounding box's smallest side); 0.25 in every
-    channel where it has no bounding surface."""
-    box = bs.medium_box(m)
+    """(2, 3): curved_extrapolation (row 0, IMAGE_CURVED) and flat_extrapolation (row 1, IMAGE_FLAT) of medium m's
+    body in a built scene (its bounding box's smallest side); the small bodies' values where it has no bounding
+    surface."""
+    side = bs.medium_side(m)
+    if side is None:
+        return DEFAULT_IMAGE_K.copy()
     med = medium_params(bs.media, m)
-    if box is None:
-        return np.full(3, CURVED_EXTRAPOLATION)
-    return curved_extrapolation(med.sigma_a, med.sigma_s, transport_share(med.phase, med.g),
-                                float(np.min(box[1] - box[0])), bs.reflects_into(m))
+    args = (med.sigma_a, med.sigma_s, transport_share(med.phase, med.g), side, bs.reflects_into(m))
+    return np.stack([curved_extrapolation(*args), flat_extrapolation(*args)])

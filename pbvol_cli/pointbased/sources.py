@@ -21,7 +21,7 @@ from pbvol_cli.multiple_scattering.table import scaled_lookup
 from pbvol_cli.physics.phase import phase_eval
 from pbvol_cli.physics.sampling import stratified_depth
 from pbvol_cli.pointbased.inverse_square import attenuated_inv_r2_ball
-from pbvol_cli.pointbased.volume_samples import ENTRY_N, ENTRY_Q, EXIT_N, EXIT_Q
+from pbvol_cli.pointbased.volume_samples import ENTRY_N, ENTRY_Q, EXIT_N, EXIT_Q, IMAGE_CURVED, IMAGE_FLAT
 
 Source = namedtuple("Source", ["x", "y", "z", "dx", "dy", "dz", "pr", "pg", "pb", "extent"])
 Source.__doc__ = """A point source: position, unit direction of its beam, scattered power (RGB, W), and the radius of
@@ -29,9 +29,6 @@ the ball its double scattering is smeared over (scene units)."""
 
 NEAR_READ_TRANSPORT = 1.0  # the multiple term reads the table no nearer a source than its extent, and that at most
 # this many transport mean free paths of the densest channel (source_terms)
-FLAT_FACE_EXTRAPOLATION = 0.45  # the same under a flat face of the boundary (flat_faces.py): the slab's furnace
-# read multiple / 3+ 0.81 at 0.25 and 1.04 at 0.5, and the milk glass was dark next to its faces; over six seeds
-# the slab reads 0.956 at 0.4, 1.003 at 0.45, 1.049 at 0.5 (docs/pbl.md, section 7)
 NEAR_SUB = 8  # sub-points along a segment that is close to P (double scattering)
 MS_CELL = 0.1  # mean free paths: segments longer than this are split for the multiple-scattering look-up
 
@@ -117,11 +114,12 @@ def source_terms(src, plane, med, q, rclamp, do_double, do_multiple, tabs, split
         # The table's medium is infinite. Corrected by the method of images twice: a mirror image of the source
         # (lobe mirrored) behind the source's boundary plane and another behind P's (the camera segment's nearer
         # end plane), each plane moved out by med.image_k transport mean free paths (image_planes.py: 0.25 on
-        # small bodies, toward diffusion's 0.7104 on bodies many diffusion lengths thick). Each image gives a
+        # small bodies' curved parts, 0.45 on flat faces, toward diffusion's 0.7104 on bodies many diffusion
+        # lengths thick). Each image gives a
         # factor f = 1 - image / table in [0, 1] (the half-space's response is never negative); P's factor enters
         # as f_P^w, w = (1 - n . n_P) / 2: where both points are under the same plane it is the same image, counted
         # once, while a source under the far side of a body (n_P = -n) gets both (docs/pbl.md). A plane on a flat
-        # face of the boundary takes FLAT_FACE_EXTRAPOLATION instead (flat_faces.py).
+        # face of the boundary (flat_faces.py) takes image_k's row IMAGE_FLAT.
         image = qn < np.inf
         image_p = pplane[3] < np.inf
         dn = 2.0 * (dx * nx + dy * ny + dz * nz)
@@ -151,12 +149,12 @@ def source_terms(src, plane, med, q, rclamp, do_double, do_multiple, tabs, split
             v = v0
             transport_mfp = 1.0 / max(sig_a[c] + transport_share(kind, g) * sig_s[c], 1e-30)
             if image:
-                k_s = FLAT_FACE_EXTRAPOLATION if flat_s else med.image_k[c]
+                k_s = med.image_k[IMAGE_FLAT if flat_s else IMAGE_CURVED, c]
                 h = 2.0 * (max(qn - (nx * x + ny * y + nz * z), 0.0) + k_s * transport_mfp)
                 vi = scaled_lookup(tabs[c], Pc, st, rx - h * nx, ry - h * ny, rz - h * nz, ex, ey, ez, wx, wy, wz)
                 v *= min(max(1.0 - vi / v0, 0.0), 1.0)
             if image_p and wp > 0.0 and v > 0.0:
-                k_p = FLAT_FACE_EXTRAPOLATION if flat_p else med.image_k[c]
+                k_p = med.image_k[IMAGE_FLAT if flat_p else IMAGE_CURVED, c]
                 h = 2.0 * (max(pplane[3] - (ax * x + ay * y + az * z), 0.0) + k_p * transport_mfp)
                 vi = scaled_lookup(tabs[c], Pc, st, rx - h * ax, ry - h * ay, rz - h * az, fx, fy, fz, wx, wy, wz)
                 v *= min(max(1.0 - vi / v0, 0.0), 1.0) ** wp

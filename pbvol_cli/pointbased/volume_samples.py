@@ -44,12 +44,17 @@ from that sample's start (leg_table; empty: the samples are not grouped in legs)
 FACE_COLS = 5
 NO_FACES = np.zeros((0, FACE_COLS))
 CURVED_EXTRAPOLATION = 0.25  # transport mean free paths by which a curved boundary's image planes lie beyond it
+FLAT_FACE_EXTRAPOLATION = 0.45  # the same under a flat face of the boundary (flat_faces.py): the slab's furnace
+# read multiple / 3+ 0.81 at 0.25 and 1.04 at 0.5, and the milk glass was dark next to its faces; over six seeds
+# the slab reads 0.956 at 0.4, 1.003 at 0.45, 1.049 at 0.5 (docs/pbl.md, section 7)
+IMAGE_CURVED, IMAGE_FLAT = 0, 1  # image_k's rows
+DEFAULT_IMAGE_K = np.array([[CURVED_EXTRAPOLATION] * 3, [FLAT_FACE_EXTRAPOLATION] * 3])
 Medium = namedtuple("Medium", ["sigma_a", "sigma_s", "phase", "g", "faces", "image_k"],
-                    defaults=(NO_FACES, np.full(3, CURVED_EXTRAPOLATION)))
+                    defaults=(NO_FACES, DEFAULT_IMAGE_K))
 Medium.__doc__ = """A homogeneous medium for the kernels: sigma_a, sigma_s (3,) in 1/scene unit, phase kind, g, the
-flat faces of its boundary (k, FACE_COLS) (flat_faces.medium_faces; none by default), and image_k, the transport
-mean free paths by which the multiple term's image planes lie beyond its boundary where it is not a flat face
-(sources.source_terms)."""
+flat faces of its boundary (k, FACE_COLS) (flat_faces.medium_faces; none by default), and image_k (2, 3), the
+transport mean free paths by which the multiple term's image planes lie beyond its boundary per channel, where it
+curves (row IMAGE_CURVED) and on a flat face (row IMAGE_FLAT) (image_planes.py, sources.source_terms)."""
 Query = namedtuple("Query", ["x", "y", "z", "wx", "wy", "wz", "plane"])
 Query.__doc__ = """The point P where in-scattered radiance is wanted, toward the propagation direction w (toward the
 camera), and P's boundary plane (n_x, n_y, n_z, q) with n . x = q on it (q = inf: none; NO_PLANE)."""
@@ -80,9 +85,9 @@ def nearer_plane(planes, i, px, py, pz):
 
 def medium_params(media: np.ndarray, m: int, faces: np.ndarray = NO_FACES, image_k: np.ndarray | None = None) -> Medium:
     """Medium m of a built scene's media table, with the flat faces of its boundary (flat_faces.medium_faces) and
-    its curved boundary's image extrapolation per channel (image_planes.medium_extrapolation; None: 0.25)."""
+    its boundary's image extrapolations (2, 3) (image_planes.medium_extrapolation; None: DEFAULT_IMAGE_K)."""
     row = media[m]
-    k = np.full(3, CURVED_EXTRAPOLATION) if image_k is None else np.asarray(image_k, np.float64)
+    k = DEFAULT_IMAGE_K if image_k is None else np.asarray(image_k, np.float64)
     return Medium(row[MED_SIGMA_A:MED_SIGMA_A + 3], row[MED_SIGMA_S:MED_SIGMA_S + 3], int(row[MED_PHASE]),
                   float(row[MED_G]), faces, k)
 

@@ -8,8 +8,10 @@ import pytest
 
 from pbvol_cli import config as C
 from pbvol_cli.geometry.scene_build import build_scene
-from pbvol_cli.pointbased.image_planes import MILNE_EXTRAPOLATION, curved_extrapolation, medium_extrapolation
-from pbvol_cli.pointbased.volume_samples import CURVED_EXTRAPOLATION
+from pbvol_cli.pointbased.image_planes import (MILNE_EXTRAPOLATION, curved_extrapolation, flat_extrapolation,
+                                               medium_extrapolation)
+from pbvol_cli.pointbased.volume_samples import (CURVED_EXTRAPOLATION, DEFAULT_IMAGE_K, FLAT_FACE_EXTRAPOLATION,
+                                                 IMAGE_CURVED, IMAGE_FLAT)
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
@@ -19,9 +21,10 @@ def grey(thickness, albedo, reflects):
     return curved_extrapolation(np.full(3, 1.0 - albedo), np.full(3, albedo), 1.0, thickness, reflects)
 
 
-def test_the_examples_pbl_was_measured_on_keep_the_small_bodies_value():
-    """Every example thinner than the gate keeps exactly 0.25 (their images, and what docs/pbl.md measured on
-    them, are unchanged); the marble bunny, 53-73 reduced mean free paths thick, grows toward the Milne value."""
+def test_the_examples_pbl_was_measured_on_keep_the_small_bodies_values():
+    """Every example thinner than the gate keeps exactly 0.25 where its boundary curves and 0.45 on its flat faces
+    (their images, and what docs/pbl.md measured on them, are unchanged); the marble bunny, 53-73 reduced mean free
+    paths thick, grows toward the Milne value."""
     grown = {}
     for path in sorted(CONFIGS.glob("*.toml")):
         b = build_scene(C.load_scene(path), path, (8, 8))
@@ -29,11 +32,14 @@ def test_the_examples_pbl_was_measured_on_keep_the_small_bodies_value():
             if b.medium_info[m].material.density is not None:
                 continue
             k = medium_extrapolation(b, m)
+            assert k.shape == (2, 3)
             if path.stem != "marble_bunny":
-                assert np.all(k == CURVED_EXTRAPOLATION), (path.stem, k)
+                assert np.all(k == DEFAULT_IMAGE_K), (path.stem, k)
             grown[path.stem] = k
-    k = grown["marble_bunny"]
+    k = grown["marble_bunny"][IMAGE_CURVED]
     assert np.all((k > 0.3) & (k < 0.55)) and k[0] < k[1] < k[2], k  # red diffuses farthest: least grown
+    flat = grown["marble_bunny"][IMAGE_FLAT]
+    assert np.all((flat > FLAT_FACE_EXTRAPOLATION) & (flat < MILNE_EXTRAPOLATION)) and flat[0] < flat[1] < flat[2]
 
 
 def test_a_non_absorbing_body_keeps_the_small_bodies_value_at_any_size():
@@ -58,3 +64,18 @@ def test_a_reflecting_boundary_grows_first():
     smaller size than index-matched ones (docs/pbl.md section 7)."""
     for thickness in (15.0, 30.0, 60.0, 120.0):
         assert grey(thickness, 0.999, True)[0] > grey(thickness, 0.999, False)[0]
+
+
+@pytest.mark.parametrize("reflects", [True, False])
+def test_flat_faces_grow_from_their_own_value_by_the_same_law(reflects):
+    """A thick body is flat on the scale its light spreads over whatever its faces' shape: under a flat face the
+    images start at the slab's 0.45 and go the same share of the way to the Milne value as the curved parts'."""
+    for thickness, albedo in ((5.0, 0.999), (30.0, 0.999), (240.0, 0.999), (5000.0, 0.99), (100.0, 1.0)):
+        args = (np.full(3, 1.0 - albedo), np.full(3, albedo), 1.0, thickness, reflects)
+        curved, flat = curved_extrapolation(*args)[0], flat_extrapolation(*args)[0]
+        share = (curved - CURVED_EXTRAPOLATION) / (MILNE_EXTRAPOLATION - CURVED_EXTRAPOLATION)
+        assert flat == pytest.approx(FLAT_FACE_EXTRAPOLATION + share * (MILNE_EXTRAPOLATION
+                                                                        - FLAT_FACE_EXTRAPOLATION), abs=1e-12)
+        assert FLAT_FACE_EXTRAPOLATION <= flat <= MILNE_EXTRAPOLATION and flat >= curved
+    assert flat_extrapolation(np.full(3, 0.01), np.full(3, 0.99), 1.0, 5000.0, reflects)[0] == pytest.approx(
+        MILNE_EXTRAPOLATION, abs=1e-6)

@@ -187,7 +187,7 @@ def test_index_matched_slab_furnace(tmp_path):
     """A non-absorbing slab 20 mean free paths thick and 80 wide (a box 1 x 4 x 4 at mean free path 0.05) in an
     index-matched boundary under a white sky, seen from above at its centre, renders the sky. Under its flat face
     the light diffuses far sideways and the multiple term's images lie farther out than under a curved boundary
-    (sources.FLAT_FACE_EXTRAPOLATION): with the curved bodies' distance it read 0.745 (multiple 0.515 of volpath's
+    (volume_samples.FLAT_FACE_EXTRAPOLATION): with the curved bodies' distance it read 0.745 (multiple 0.515 of volpath's
     order 3+ 0.757); now 1.02, 0.95 and 1.00 with seeds 0-2, and 1.003 +- 0.017 over seeds 0-5 at 16 spp
     (docs/pbl.md, section 7)."""
     shape = {"type": "box", "size": [4.0, 1.0, 4.0], "interface": "null",

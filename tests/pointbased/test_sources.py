@@ -7,9 +7,10 @@ from pbvol_cli.multiple_scattering.layout import Layout
 from pbvol_cli.multiple_scattering.table import TableSettings, build_table, scaled_lookup
 from pbvol_cli.physics.phase import phase_eval
 from pbvol_cli.pointbased.inverse_square import attenuated_inv_r2_ball
-from pbvol_cli.pointbased.sources import (FLAT_FACE_EXTRAPOLATION, NEAR_READ_TRANSPORT, Source, on_flat_face,
+from pbvol_cli.pointbased.sources import (NEAR_READ_TRANSPORT, Source, on_flat_face,
                                           source_terms)
-from pbvol_cli.pointbased.volume_samples import CURVED_EXTRAPOLATION, FACE_COLS, NO_PLANE, Medium, Query
+from pbvol_cli.pointbased.volume_samples import (CURVED_EXTRAPOLATION, FACE_COLS, FLAT_FACE_EXTRAPOLATION, NO_PLANE,
+                                                 Medium, Query)
 
 
 def test_multiple_term_of_a_source_with_its_image_is_never_negative():
@@ -168,10 +169,11 @@ def test_a_wide_source_is_read_no_farther_than_a_transport_mean_free_path():
 
 
 def test_images_in_a_flat_face_lie_farther_out():
-    """Both images (the source's plane and P's) move out by FLAT_FACE_EXTRAPOLATION transport mean free paths
-    where the plane is one of the medium's flat faces (either orientation, within the face's tolerance), by
-    CURVED_EXTRAPOLATION elsewhere: the same value as the formula with each distance, and more light under the
-    face (an index-matched slab read 0.75 of volpath with the curved bodies' distance under its faces)."""
+    """Both images (the source's plane and P's) move out by FLAT_FACE_EXTRAPOLATION transport mean free paths where the
+    plane is one of the medium's flat faces (either orientation, within the face's tolerance), by
+    CURVED_EXTRAPOLATION elsewhere (the rows of the medium's image_k): the same value as the formula with each
+    distance, and more light under the face (an index-matched slab read 0.75 of volpath with the curved bodies'
+    distance under its faces)."""
     lay = Layout(extent=10.0, n_rho=16, n_z=32, n_theta=9, n_phi=9, kill_radius=20.0)
     table, _ = build_table(0.95, 0.0, 1, TableSettings(particles=20000, layout=lay, sh_order=8))
     tab = table.render_args()
@@ -180,10 +182,10 @@ def test_images_in_a_flat_face_lie_farther_out():
     d = np.array([0.0, 0.6, -0.8])
     x, p = np.array([0.0, 0.0, -0.3]), np.array([0.4, 0.2, -0.5])
 
-    def multiple(faces):
+    def multiple(faces, *image_k):
         out_m = np.zeros(3)
         source_terms(Source(*x, *d, 1.0, 1.0, 1.0, 0.05), np.array([*top, *top]),
-                     Medium(sig_a, sig_s, 1, 0.0, faces), Query(*p, 0.0, 0.0, 1.0, top), 0.02, False, True,
+                     Medium(sig_a, sig_s, 1, 0.0, faces, *image_k), Query(*p, 0.0, 0.0, 1.0, top), 0.02, False, True,
                      (tab,) * 3, 0.0, np.zeros(3), out_m)
         return out_m[0]
 
@@ -202,6 +204,10 @@ def test_images_in_a_flat_face_lie_farther_out():
     assert multiple(elsewhere) == pytest.approx(expected(CURVED_EXTRAPOLATION), rel=1e-9)
     assert multiple(face) == pytest.approx(expected(FLAT_FACE_EXTRAPOLATION), rel=1e-9)
     assert multiple(face) > 1.05 * multiple(elsewhere) > 0  # (the farther image takes less away)
+    # a thick body's grown distances (image_planes.py): the curved row elsewhere, the flat row on the face
+    grown = np.array([[0.3] * 3, [0.6] * 3])
+    assert multiple(elsewhere, grown) == pytest.approx(expected(0.3), rel=1e-9)
+    assert multiple(face, grown) == pytest.approx(expected(0.6), rel=1e-9)
 
 
 def test_a_plane_is_on_a_flat_face_in_either_orientation_within_its_tolerance():
