@@ -80,9 +80,9 @@ def _similarity_notes(scene: C.Scene, b) -> list[str]:
 DIFFUSION_THICKNESS = 10.0  # reduced mean free paths: a thinner body is far from the dipole's half-space
 DIFFUSION_ALBEDO = 0.9  # reduced albedo below which diffusion is a poor model (docs/dipole.md)
 POINTBASED_ALBEDO = DIFFUSION_ALBEDO  # reduced albedo above which a body diffuses (pointbased_regime)
-FLAT_GROWTH_NAMED = 0.1  # image_planes.image_growth beyond which a reflecting body's flat faces read low: grey
-# boxes of albedo 0.999 behind eta 1.5, 60 and 240 reduced mean free paths thick (0.34 and 0.81 of the growth),
-# read 0.85 and 0.75 of volpath's scattered light (docs/pbl.md, section 7)
+FLAT_GROWTH_NAMED = 0.1  # image_planes.image_growth (behind a reflecting boundary) beyond which a body's flat faces
+# read low: grey boxes of albedo 0.999, 60 and 240 reduced mean free paths thick (0.34 and 0.81 of the growth), read
+# 0.85 and 0.75 of volpath's scattered light behind eta 1.5, 0.88 and 0.94 index-matched (docs/pbl.md, section 7)
 POINTBASED_DIFFUSION_LENGTHS = 7.0  # half-thickness in diffusion lengths 1/sigma_tr beyond which pbl reads low:
 # grey spheres behind eta 1.5 read 0.99 of volpath's scattered light at 3.3, 0.96 at 6.6, 0.85 at 10.4 (albedo
 # 0.99); the marble sphere 0.92 in blue at 7.6 (docs/pbl.md, section 11)
@@ -145,8 +145,8 @@ def pointbased_regime(b, k: int, box=None, extent: float | str = "auto") -> str:
     else why not and what to use instead. In a channel of reduced albedo above POINTBASED_ALBEDO, pbl reads low
     (benchmarks/pbl_thickness.py, docs/pbl.md section 11) where half the body's smallest side is more than
     POINTBASED_DIFFUSION_LENGTHS diffusion lengths (the multiple term's images, image_planes.py, fitted up to about
-    7), where a reflecting boundary's flat faces bound a body thick enough that their images grow (more than
-    FLAT_GROWTH_NAMED of image_planes.image_growth), or where light spreads over more mean free paths than the
+    7), where flat faces bound a body thick enough that their images grow (more than FLAT_GROWTH_NAMED of
+    image_planes.image_growth behind a reflecting boundary), or where light spreads over more mean free paths than the
     multiple-scattering table holds: the smaller of extent.TABLE_REACH diffusion lengths and the body's side, beyond
     the table's extent (`extent`: [render.lut] extent, a number of mean free paths or "auto", which reaches as far
     up to extent.AUTO_EXTENT_MAX). box: the body's bounding box (None: found here)."""
@@ -167,13 +167,14 @@ def pointbased_regime(b, k: int, box=None, extent: float | str = "auto") -> str:
                 f"{float(np.max(albedo[diffusing])):.3g}): pbl's multiple scattering reads low in a body this thick "
                 f"(docs/pbl.md, section 11); {instead}")
     side = _smallest_side(box) if box is not None else b.medium_side(k)
-    if b.reflects_into(k) and len(medium_faces(b, k)):
+    if len(medium_faces(b, k)):
+        # (the growth behind a reflecting boundary, the faster, whatever this one's: index-matched boxes read low too)
         grown = image_growth(mi.sigma_a, mi.sigma_s, 1.0 - mi.material.g, side, True)
         if float(np.max(grown[diffusing])) > FLAT_GROWTH_NAMED:
             instead = "--method dipole suits it" if _diffusion_regime(b, k, box) == "" else "volpath renders it"
-            return (f"flat faces of a body {float(np.max(thickness[diffusing])):.3g} reduced mean free paths thick "
-                    "behind a reflecting boundary: pbl's multiple scattering reads low under them (a grey box 60 "
-                    f"thick: 0.85 of volpath's scattered light; docs/pbl.md, section 7); {instead}")
+            return (f"flat faces of a body {float(np.max(thickness[diffusing])):.3g} reduced mean free paths thick: "
+                    "pbl's multiple scattering reads low under them (grey boxes 60 thick: 0.85 of volpath's "
+                    f"scattered light behind eta 1.5, 0.88 index-matched; docs/pbl.md, section 7); {instead}")
     spread = light_spread(mi.sigma_a, mi.sigma_s, mi.material.g, side)
     held = table_extents(mi.sigma_a, mi.sigma_s, mi.material.g, side, extent)
     short = diffusing & (spread > held)
