@@ -2,13 +2,17 @@
 """How much of a dense body's scattered light each method renders against volpath, as the body thickens.
 
     .venv/bin/python benchmarks/pbl_thickness.py [--thickness 15,30,60,120,240] [--eta 1.5] [--albedo 0.999] [--g 0]
-        [--scenes configs/marble_bunny.toml] [--methods pbl,dipole] [--resolution 32] [--spp 8] [--ref-spp 1024]
-        [--ref-seeds 8] [--extent auto] [--out bench-out/pbl_thickness] [--threads 2] [--cache DIR]
+        [--boxes 15,30,60,120,240 [--null]] [--scenes configs/marble_bunny.toml] [--methods pbl,dipole]
+        [--resolution 32] [--spp 8] [--ref-spp 1024] [--ref-seeds 8] [--extent auto] [--out bench-out/pbl_thickness]
+        [--threads 2] [--cache DIR]
 
 benchmarks/scenes/marble_sphere.toml (a sphere of radius 3 cm behind eta 1.5 over a floor, under a sphere light)
 with its marble replaced by a grey medium of --albedo, --g and index --eta whose mean free path makes the sphere
 each of --thickness reduced mean free paths (1/sigma'_t) across (the same geometry and light throughout; the files
 are named grey_sphere_<thickness>_eta<eta>, with _albedo<a> and _g<g> where those are not 0.999 and 0), then each
+of --boxes: benchmarks/scenes/thick_box.toml (a box 30 x 10 x 30 behind eta 1.5 under a sphere light) with the same
+grey medium, each of --boxes reduced mean free paths thick along its short side (grey_box_<thickness>_eta<eta>, its
+boundary of index --eta; with --null an index-matched boundary, grey_box_<thickness>_null), then each
 of --scenes as they are (the marble bunny: 53-73 reduced mean free paths thick). Per scene: volpath at --ref-spp
 with seeds 1 to --ref-seeds, averaged (one seed's 1024 samples read a sphere's scattered light within 2-5 %),
 volpath with no volume scattering (--orders 0: the surfaces alone, at a quarter of --ref-spp) and each of
@@ -48,6 +52,8 @@ def main():
                     help="the sphere's diameters in reduced mean free paths ('' for none)")
     ap.add_argument("--albedo", type=float, default=SPHERE_ALBEDO, help="the grey spheres' single-scattering albedo")
     ap.add_argument("--g", type=float, default=0.0, help="the grey spheres' Henyey-Greenstein g")
+    ap.add_argument("--boxes", default="", help="grey boxes' short sides in reduced mean free paths ('' for none)")
+    ap.add_argument("--null", action="store_true", help="the boxes behind an index-matched boundary")
     ap.add_argument("--scenes", default="configs/marble_bunny.toml", help="more scene files, comma-separated")
     ap.add_argument("--methods", default="pbl")
     ap.add_argument("--resolution", type=int, default=32)
@@ -71,6 +77,19 @@ def main():
                                       "mean_free_path": diameter * reduced / float(across), "eta": args.eta}
         tag = (f"_albedo{args.albedo:g}" if args.albedo != SPHERE_ALBEDO else "") + (f"_g{args.g:g}" if args.g else "")
         path = args.out / f"grey_sphere_{across}{tag}_eta{args.eta:g}.toml"
+        path.write_text(tomli_w.dumps(doc))
+        scenes.append(path)
+    box = ROOT / "benchmarks" / "scenes" / "thick_box.toml"
+    for across in filter(None, args.boxes.split(",")):
+        doc = tomllib.loads(box.read_text())
+        shape = doc["shapes"][0]
+        reduced = 1.0 - args.g * args.albedo
+        shape["medium"] = {"albedo": args.albedo, "g": args.g,
+                           "mean_free_path": min(shape["size"]) * reduced / float(across)}
+        shape["interface"] = "null" if args.null else "dielectric"  # (a null boundary does not read its eta)
+        shape["eta"] = args.eta
+        tag = (f"_albedo{args.albedo:g}" if args.albedo != SPHERE_ALBEDO else "") + (f"_g{args.g:g}" if args.g else "")
+        path = args.out / f"grey_box_{across}{tag}_{'null' if args.null else f'eta{args.eta:g}'}.toml"
         path.write_text(tomli_w.dumps(doc))
         scenes.append(path)
     scenes += [ROOT / s for s in filter(None, args.scenes.split(","))]

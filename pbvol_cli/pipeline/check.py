@@ -10,7 +10,6 @@ from pbvol_cli import config as C
 from pbvol_cli.geometry.scene_build import MED_SEALED
 from pbvol_cli.multiple_scattering.extent import DEFAULT_EXTENT, light_spread, table_extents
 from pbvol_cli.pointbased.flat_faces import medium_faces
-from pbvol_cli.pointbased.image_planes import image_growth
 
 
 def describe(scene: C.Scene, path: Path) -> dict:
@@ -80,9 +79,9 @@ def _similarity_notes(scene: C.Scene, b) -> list[str]:
 DIFFUSION_THICKNESS = 10.0  # reduced mean free paths: a thinner body is far from the dipole's half-space
 DIFFUSION_ALBEDO = 0.9  # reduced albedo below which diffusion is a poor model (docs/dipole.md)
 POINTBASED_ALBEDO = DIFFUSION_ALBEDO  # reduced albedo above which a body diffuses (pointbased_regime)
-FLAT_GROWTH_NAMED = 0.1  # image_planes.image_growth (behind a reflecting boundary) beyond which a body's flat faces
-# read low: grey boxes of albedo 0.999, 60 and 240 reduced mean free paths thick (0.34 and 0.81 of the growth), read
-# 0.85 and 0.75 of volpath's scattered light behind eta 1.5, 0.88 and 0.94 index-matched (docs/pbl.md, section 7)
+FLAT_REFLECTING_DIFFUSION_LENGTHS = 2.5  # half-thickness in diffusion lengths beyond which a body with flat faces
+# behind a reflecting boundary reads low: grey boxes of albedo 0.999 behind eta 1.5 read 1.02 of volpath's scattered
+# light at 1.6, 0.85 at 3.3, 0.77 at 6.6 (index-matched 1.00, 0.98, 0.97; docs/pbl.md, section 7)
 POINTBASED_DIFFUSION_LENGTHS = 7.0  # half-thickness in diffusion lengths 1/sigma_tr beyond which pbl reads low:
 # grey spheres behind eta 1.5 read 0.99 of volpath's scattered light at 3.3, 0.96 at 6.6, 0.85 at 10.4 (albedo
 # 0.99); the marble sphere 0.92 in blue at 7.6 (docs/pbl.md, section 11)
@@ -145,8 +144,8 @@ def pointbased_regime(b, k: int, box=None, extent: float | str = "auto") -> str:
     else why not and what to use instead. In a channel of reduced albedo above POINTBASED_ALBEDO, pbl reads low
     (benchmarks/pbl_thickness.py, docs/pbl.md section 11) where half the body's smallest side is more than
     POINTBASED_DIFFUSION_LENGTHS diffusion lengths (the multiple term's images, image_planes.py, fitted up to about
-    7), where flat faces bound a body thick enough that their images grow (more than FLAT_GROWTH_NAMED of
-    image_planes.image_growth behind a reflecting boundary), or where light spreads over more mean free paths than the
+    7), where flat faces bound a body more than FLAT_REFLECTING_DIFFUSION_LENGTHS thick behind a reflecting boundary
+    (its bounced light reads low under them), or where light spreads over more mean free paths than the
     multiple-scattering table holds: the smaller of extent.TABLE_REACH diffusion lengths and the body's side, beyond
     the table's extent (`extent`: [render.lut] extent, a number of mean free paths or "auto", which reaches as far
     up to extent.AUTO_EXTENT_MAX). box: the body's bounding box (None: found here)."""
@@ -167,14 +166,11 @@ def pointbased_regime(b, k: int, box=None, extent: float | str = "auto") -> str:
                 f"{float(np.max(albedo[diffusing])):.3g}): pbl's multiple scattering reads low in a body this thick "
                 f"(docs/pbl.md, section 11); {instead}")
     side = _smallest_side(box) if box is not None else b.medium_side(k)
-    if len(medium_faces(b, k)):
-        # (the growth behind a reflecting boundary, the faster, whatever this one's: index-matched boxes read low too)
-        grown = image_growth(mi.sigma_a, mi.sigma_s, 1.0 - mi.material.g, side, True)
-        if float(np.max(grown[diffusing])) > FLAT_GROWTH_NAMED:
-            instead = "--method dipole suits it" if _diffusion_regime(b, k, box) == "" else "volpath renders it"
-            return (f"flat faces of a body {float(np.max(thickness[diffusing])):.3g} reduced mean free paths thick: "
-                    "pbl's multiple scattering reads low under them (grey boxes 60 thick: 0.85 of volpath's "
-                    f"scattered light behind eta 1.5, 0.88 index-matched; docs/pbl.md, section 7); {instead}")
+    if half > FLAT_REFLECTING_DIFFUSION_LENGTHS and len(medium_faces(b, k)) and b.reflects_into(k):
+        instead = "--method dipole suits it" if _diffusion_regime(b, k, box) == "" else "volpath renders it"
+        return (f"flat faces behind a reflecting boundary, half its thickness {half:.2g} diffusion lengths: pbl reads "
+                "low under them (a grey box 120 reduced mean free paths thick behind eta 1.5: "
+                f"0.85 of volpath's scattered light; docs/pbl.md, section 7); {instead}")
     spread = light_spread(mi.sigma_a, mi.sigma_s, mi.material.g, side)
     held = table_extents(mi.sigma_a, mi.sigma_s, mi.material.g, side, extent)
     short = diffusing & (spread > held)

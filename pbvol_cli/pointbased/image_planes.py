@@ -14,9 +14,13 @@ half-thickness in diffusion lengths, x = sigma_tr R, sigma_tr = sqrt(3 sigma_a s
 - index-matched (no bounced light), k = 0.25 + (0.7104 - 0.25) (1 - exp(-(x / MATCHED_SCALE)^2)),
 both fitted on grey spheres of albedo 0.999 and 0.99 from 15 to 240 reduced mean free paths thick, and only in
 bodies thicker than GATE reduced mean free paths (a smoothstep between its two ends): the examples pbl was
-measured on are at most 7 thick and keep 0.25. A non-absorbing body (x = 0) keeps 0.25 at any size. Flat faces
-(flat_faces.py) start from their own value, volume_samples.FLAT_FACE_EXTRAPOLATION (the slab's furnace), and grow by the
-same law toward the same limit: a thick body is flat on the scale light spreads over whatever its faces' shape.
+measured on are at most 7 thick and keep 0.25. A non-absorbing body (x = 0) keeps 0.25 at any size.
+
+Flat faces (flat_faces.py) start from their own value, volume_samples.FLAT_FACE_EXTRAPOLATION (the slab's furnace),
+and reach the Milne value within about a diffusion length of half-thickness, whatever the boundary:
+k = 0.45 + (0.7104 - 0.45) (1 - exp(-x / FLAT_SCALE)), behind the same gate. A flat face does not fall away from its
+plane, so the far field rules there from a smaller body than under a curved boundary: fitted on grey boxes of albedo
+0.999, 15 to 60 reduced mean free paths thick, behind eta 1.5 and index-matched (docs/pbl.md section 7).
 """
 
 from __future__ import annotations
@@ -32,20 +36,36 @@ MILNE_EXTRAPOLATION = 0.7104  # transport mean free paths: diffusion's extrapola
 REFLECTING_SCALE = 4.0  # diffusion lengths of half-thickness over which k nears the Milne value (boundary reflects)
 MATCHED_SCALE = 4.86  # the same behind a null or index-matched boundary (a later, steeper rise)
 GATE = (8.0, 15.0)  # reduced mean free paths thick: below the first, 0.25; from the second, the whole growth
+FLAT_SCALE = 1.0  # diffusion lengths of half-thickness over which k nears the Milne value under a flat face
+
+
+def _half_thickness(sigma_a: np.ndarray, sigma_s: np.ndarray, share: float, size: float):
+    """(thick, x) per channel (3,): a body `size` thick (scene units) in reduced mean free paths, and half of it in
+    diffusion lengths (sigma_tr = sqrt(3 sigma_a sigma'_t)); share: the phase function's transport share."""
+    transport = sigma_a + share * sigma_s  # sigma'_t
+    return size * transport, np.sqrt(3.0 * sigma_a * transport) * 0.5 * size
+
+
+def _gate(thick: np.ndarray) -> np.ndarray:
+    """0 below GATE[0] reduced mean free paths thick, 1 from GATE[1], a smoothstep between."""
+    t = np.clip((thick - GATE[0]) / (GATE[1] - GATE[0]), 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
 
 
 def image_growth(sigma_a: np.ndarray, sigma_s: np.ndarray, share: float, size: float, reflects: bool) -> np.ndarray:
-    """The share (3,) in [0, 1] of the way from a small body's extrapolation to the Milne value that a body `size`
-    thick along its thinnest axis (scene units) of sigma_a, sigma_s (3,) (1/scene unit) has gone, its phase
-    function's transport share `share` (sources.transport_share); reflects: whether its boundary reflects light
-    back into it (BuiltScene.reflects_into)."""
-    transport = sigma_a + share * sigma_s  # sigma'_t
-    thick = size * transport  # reduced mean free paths
-    x = np.sqrt(3.0 * sigma_a * transport) * 0.5 * size  # half the thickness in diffusion lengths
-    t = np.clip((thick - GATE[0]) / (GATE[1] - GATE[0]), 0.0, 1.0)
-    gate = t * t * (3.0 - 2.0 * t)
+    """The share (3,) in [0, 1] of the way from a small body's extrapolation to the Milne value that the curved
+    parts of a body `size` thick along its thinnest axis (scene units) of sigma_a, sigma_s (3,) (1/scene unit) have
+    gone, its phase function's transport share `share` (sources.transport_share); reflects: whether its boundary
+    reflects light back into it (BuiltScene.reflects_into)."""
+    thick, x = _half_thickness(sigma_a, sigma_s, share, size)
     rise = 1.0 - (np.exp(-x / REFLECTING_SCALE) if reflects else np.exp(-(x / MATCHED_SCALE) ** 2))
-    return gate * rise
+    return _gate(thick) * rise
+
+
+def flat_growth(sigma_a: np.ndarray, sigma_s: np.ndarray, share: float, size: float) -> np.ndarray:
+    """The same share (3,) under the flat faces of that body (module docstring: FLAT_SCALE, either boundary)."""
+    thick, x = _half_thickness(sigma_a, sigma_s, share, size)
+    return _gate(thick) * (1.0 - np.exp(-x / FLAT_SCALE))
 
 
 def curved_extrapolation(sigma_a: np.ndarray, sigma_s: np.ndarray, share: float, size: float,
@@ -55,11 +75,10 @@ def curved_extrapolation(sigma_a: np.ndarray, sigma_s: np.ndarray, share: float,
     return CURVED_EXTRAPOLATION + (MILNE_EXTRAPOLATION - CURVED_EXTRAPOLATION) * grown
 
 
-def flat_extrapolation(sigma_a: np.ndarray, sigma_s: np.ndarray, share: float, size: float,
-                       reflects: bool) -> np.ndarray:
+def flat_extrapolation(sigma_a: np.ndarray, sigma_s: np.ndarray, share: float, size: float) -> np.ndarray:
     """k per channel (3,) under the flat faces of the same body: from FLAT_FACE_EXTRAPOLATION toward the Milne
-    value, by the same growth."""
-    grown = image_growth(sigma_a, sigma_s, share, size, reflects)
+    value by flat_growth."""
+    grown = flat_growth(sigma_a, sigma_s, share, size)
     return FLAT_FACE_EXTRAPOLATION + (MILNE_EXTRAPOLATION - FLAT_FACE_EXTRAPOLATION) * grown
 
 
@@ -71,5 +90,5 @@ def medium_extrapolation(bs: BuiltScene, m: int) -> np.ndarray:
     if side is None:
         return DEFAULT_IMAGE_K.copy()
     med = medium_params(bs.media, m)
-    args = (med.sigma_a, med.sigma_s, transport_share(med.phase, med.g), side, bs.reflects_into(m))
-    return np.stack([curved_extrapolation(*args), flat_extrapolation(*args)])
+    args = (med.sigma_a, med.sigma_s, transport_share(med.phase, med.g), side)
+    return np.stack([curved_extrapolation(*args, bs.reflects_into(m)), flat_extrapolation(*args)])
