@@ -80,8 +80,9 @@ DIFFUSION_THICKNESS = 10.0  # reduced mean free paths: a thinner body is far fro
 DIFFUSION_ALBEDO = 0.9  # reduced albedo below which diffusion is a poor model (docs/dipole.md)
 POINTBASED_ALBEDO = DIFFUSION_ALBEDO  # reduced albedo above which a body diffuses (pointbased_regime)
 FLAT_REFLECTING_DIFFUSION_LENGTHS = 2.5  # half-thickness in diffusion lengths beyond which a body with flat faces
-# behind a reflecting boundary reads low: grey boxes of albedo 0.999 behind eta 1.5 read 1.02 of volpath's scattered
-# light at 1.6, 0.85 at 3.3, 0.77 at 6.6 (index-matched 1.00, 0.98, 0.97; docs/pbl.md, section 7)
+# behind a reflecting boundary reads low over a few passes (its bounced light heavy-tailed from one set of samples to
+# the next): grey boxes of albedo 0.999 behind eta 1.5 read 1.02 of volpath's scattered light at 1.6, 0.85 at 3.3,
+# 0.77 at 6.6 with 8 passes (1.03 and 0.88 at 32; index-matched 1.00, 0.98, 0.97; docs/pbl.md, section 7)
 POINTBASED_DIFFUSION_LENGTHS = 7.0  # half-thickness in diffusion lengths 1/sigma_tr beyond which pbl reads low:
 # grey spheres behind eta 1.5 read 0.99 of volpath's scattered light at 3.3, 0.96 at 6.6, 0.85 at 10.4 (albedo
 # 0.99); the marble sphere 0.92 in blue at 7.6 (docs/pbl.md, section 11)
@@ -168,9 +169,10 @@ def pointbased_regime(b, k: int, box=None, extent: float | str = "auto") -> str:
     side = _smallest_side(box) if box is not None else b.medium_side(k)
     if half > FLAT_REFLECTING_DIFFUSION_LENGTHS and len(medium_faces(b, k)) and b.reflects_into(k):
         instead = "--method dipole suits it" if _diffusion_regime(b, k, box) == "" else "volpath renders it"
-        return (f"flat faces behind a reflecting boundary, half its thickness {half:.2g} diffusion lengths: pbl reads "
-                "low under them (a grey box 120 reduced mean free paths thick behind eta 1.5: "
-                f"0.85 of volpath's scattered light; docs/pbl.md, section 7); {instead}")
+        return (f"flat faces behind a reflecting boundary, half its thickness {half:.2g} diffusion lengths: pbl's "
+                "bounced light is heavy-tailed under them and reads low over a few passes (a grey box 120 reduced "
+                "mean free paths thick behind eta 1.5: 0.85 of volpath's scattered light at 8 passes; docs/pbl.md, "
+                f"section 7); {instead}")
     spread = light_spread(mi.sigma_a, mi.sigma_s, mi.material.g, side)
     held = table_extents(mi.sigma_a, mi.sigma_s, mi.material.g, side, extent)
     short = diffusing & (spread > held)
