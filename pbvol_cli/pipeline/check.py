@@ -171,8 +171,8 @@ def pointbased_regime(b, k: int, box=None, extent: float | str = "auto") -> str:
         instead = "--method dipole suits it" if _diffusion_regime(b, k, box) == "" else "volpath renders it"
         return (f"flat faces behind a reflecting boundary, half its thickness {half:.2g} diffusion lengths: pbl's "
                 "bounced light is heavy-tailed under them and reads low over a few passes (a grey box 120 reduced "
-                "mean free paths thick behind eta 1.5: 0.85 of volpath's scattered light at 8 passes; docs/pbl.md, "
-                f"section 7); {instead}")
+                "mean free paths thick behind eta 1.5: 0.85 of volpath's scattered light at 8 passes, 1.03 at 32; "
+                f"docs/pbl.md, section 7); {instead}")
     spread = light_spread(mi.sigma_a, mi.sigma_s, mi.material.g, side)
     held = table_extents(mi.sigma_a, mi.sigma_s, mi.material.g, side, extent)
     short = diffusing & (spread > held)
