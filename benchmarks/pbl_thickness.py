@@ -3,8 +3,8 @@
 
     .venv/bin/python benchmarks/pbl_thickness.py [--thickness 15,30,60,120,240] [--eta 1.5] [--albedo 0.999] [--g 0]
         [--boxes 15,30,60,120,240 [--null]] [--scenes configs/marble_bunny.toml] [--methods pbl,dipole]
-        [--resolution 32] [--spp 8] [--ref-spp 1024] [--ref-seeds 8] [--extent auto] [--out bench-out/pbl_thickness]
-        [--threads 2] [--cache DIR]
+        [--resolution 32] [--spp 8] [--ref-spp 1024] [--ref-seeds 8] [--extent auto] [--set k=v,...] [--seed N]
+        [--out bench-out/pbl_thickness] [--threads 2] [--cache DIR]
 
 benchmarks/scenes/marble_sphere.toml (a sphere of radius 3 cm behind eta 1.5 over a floor, under a sphere light)
 with its marble replaced by a grey medium of --albedo, --g and index --eta whose mean free path makes the sphere
@@ -19,8 +19,9 @@ volpath with no volume scattering (--orders 0: the surfaces alone, at a quarter 
 --methods at --spp. Prints the body's thickness and reduced albedo as `pbvol check` reads them
 (check.reduced_thickness), then per method its time and the ratio to volpath (R, G, B) of the image's mean and of
 the scattered light's: the image less volpath's surfaces, over the pixels where volpath's scattered light is above
-5 % of its brightest. --extent sets every scene's [render.lut] extent for the methods (their renders are named
-with _extent<e>; the volpath references are the same). Each render is kept in --out and reused when there.
+5 % of its brightest. --extent sets every scene's [render.lut] extent for the methods, --set k=v,... their
+[render.pbl] settings and --seed their seed (their renders are named with _extent<e>, _<k><v>, _seed<n>; the
+volpath references are the same). Each render is kept in --out and reused when there.
 """
 
 from __future__ import annotations
@@ -39,6 +40,8 @@ SPHERE_ALBEDO = 0.999  # the grey spheres' default (marble's is 0.998-0.999)
 def main():
     import numpy as np
     import tomli_w
+
+    from pbl_bench import pbl_overrides
 
     from pbvol_cli import config as C
     from pbvol_cli.geometry.scene_build import build_scene
@@ -60,6 +63,8 @@ def main():
     ap.add_argument("--spp", type=int, default=8)
     ap.add_argument("--ref-spp", type=int, default=1024)
     ap.add_argument("--ref-seeds", type=int, default=8, help="volpath renders averaged for the reference")
+    ap.add_argument("--set", default="", help="comma-separated k=v [render.pbl] settings for the methods")
+    ap.add_argument("--seed", type=int, default=None, help="the methods' render seed (default: the scene's)")
     ap.add_argument("--extent", default=None, help="[render.lut] extent for the methods, mean free paths (default: "
                     "each scene's own, \"auto\" unless it sets one)")
     ap.add_argument("--threads", type=int, default=2)
@@ -95,19 +100,29 @@ def main():
     scenes += [ROOT / s for s in filter(None, args.scenes.split(","))]
     res = (args.resolution, args.resolution)
 
+    pbl_set = pbl_overrides(args.set)
+
     def render(scene: Path, method: str, spp: int, orders=None, seed=None):
-        tag = f"_extent{args.extent}" if args.extent and method != "volpath" else ""
+        tag = ""
+        if method != "volpath":  # (the references do not depend on the methods' settings)
+            tag = (f"_extent{args.extent}" if args.extent else "") + "".join(
+                f"_{k}{v}" for k, v in pbl_set.items()) + (f"_seed{args.seed}" if args.seed is not None else "")
+            seed = args.seed
         out = args.out / (f"{scene.stem}_{method}_{spp}{'_orders' + orders if orders else ''}_{args.resolution}"
-                          f"{f'_seed{seed}' if seed else ''}{tag}.exr")
+                          f"{f'_seed{seed}' if seed and method == 'volpath' else ''}{tag}.exr")
         seconds = None
         if not out.exists():
-            if tag:  # the scene with the table's extent set, in a folder of --out (files it names by a relative
-                # path are not rewritten: for scenes without any, as the grey spheres)
+            if args.extent or pbl_set:  # the scene with the table's extent or pbl's settings set, in a folder of
+                # --out (files it names by a relative path are not rewritten: for scenes without any, as the grey
+                # spheres and boxes)
                 doc = tomllib.loads(scene.read_text())
-                doc.setdefault("render", {}).setdefault("lut", {})["extent"] = (
-                    args.extent if args.extent == "auto" else float(args.extent))
-                (args.out / tag[1:]).mkdir(exist_ok=True)
-                scene = args.out / tag[1:] / scene.name
+                if args.extent:
+                    doc.setdefault("render", {}).setdefault("lut", {})["extent"] = (
+                        args.extent if args.extent == "auto" else float(args.extent))
+                doc.setdefault("render", {}).setdefault("pbl", {}).update(pbl_set)
+                folder = args.out / "settings" / (tag[1:] or "as-given")
+                folder.mkdir(parents=True, exist_ok=True)
+                scene = folder / scene.name
                 scene.write_text(tomli_w.dumps(doc))
             t = time.perf_counter()
             render_scene(scene, out, RenderOptions(method=method, spp=spp, resolution=res, orders=orders, seed=seed,
