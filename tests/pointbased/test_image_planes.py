@@ -6,8 +6,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import write_scene
 from pbvol_cli import config as C
 from pbvol_cli.geometry.scene_build import build_scene
+from pbvol_cli.imageio import read_exr
+from pbvol_cli.pipeline.render import RenderOptions, render_scene
 from pbvol_cli.pointbased.image_planes import (FLAT_SCALE, MILNE_EXTRAPOLATION, curved_extrapolation,
                                                flat_extrapolation, medium_extrapolation)
 from pbvol_cli.pointbased.volume_samples import (CURVED_EXTRAPOLATION, DEFAULT_IMAGE_K, FLAT_FACE_EXTRAPOLATION,
@@ -97,3 +100,35 @@ def test_flat_faces_go_farther_toward_the_milne_value_than_curved_parts(reflects
         flat_share = (flat_extrapolation(*args)[0] - FLAT_FACE_EXTRAPOLATION) / (
             MILNE_EXTRAPOLATION - FLAT_FACE_EXTRAPOLATION)
         assert flat_share > curved, (thickness, albedo, flat_share, curved)
+
+
+def _grey_box(thickness: float, interface: str) -> dict:
+    """benchmarks/scenes/thick_box.toml's box (30 x 10 x 30 under a sphere light) of a grey medium of albedo 0.999,
+    `thickness` reduced mean free paths along its short side, at 16 x 16 pixels."""
+    return {"camera": {"position": [0.0, 30.0, 22.0], "look_at": [0.0, 5.0, 0.0], "fov": 40.0,
+                       "resolution": [16, 16]},
+            "render": {"spp": 8, "seed": 1},
+            "lights": [{"type": "sphere", "center": [-8.0, 25.0, 6.0], "radius": 2.0, "radiance": 10.0},
+                       {"type": "environment", "radiance": 0.05}],
+            "shapes": [{"type": "box", "center": [0.0, 5.0, 0.0], "size": [30.0, 10.0, 30.0], "interface": interface,
+                        "eta": 1.5, "medium": {"albedo": 0.999, "mean_free_path": 10.0 / thickness, "g": 0.0}}]}
+
+
+@pytest.mark.parametrize("interface", ["dielectric", "null"])
+def test_a_flat_faced_box_30_thick_reads_volpaths_scattered_light(tmp_path, interface):
+    """Under the flat faces' images a box 30 reduced mean free paths thick (half of it 0.82 diffusion lengths) read
+    0.88 of volpath's scattered light behind eta 1.5 and 0.92 index-matched; with the images reaching the Milne value
+    within a diffusion length (FLAT_SCALE) 1.00 and 1.02 (benchmarks/pbl_thickness.py --boxes 30, docs/pbl.md
+    section 7). Here at 16 x 16 pixels, 8 passes against 512 volpath samples, whose own noise is a few per cent."""
+    path = write_scene(tmp_path, _grey_box(30.0, interface))
+    images = {}
+    for name, opts in (("pbl", RenderOptions(method="pbl", cache_dir=tmp_path, quiet=True)),
+                       ("volpath", RenderOptions(spp=512, quiet=True)),
+                       ("surfaces", RenderOptions(spp=64, orders="0", quiet=True))):
+        render_scene(path, tmp_path / f"{name}.exr", opts)
+        images[name] = read_exr(tmp_path / f"{name}.exr")[0].astype(float)
+    scattered = images["volpath"] - images["surfaces"]
+    mask = scattered.mean(axis=2) > 0.05 * scattered.mean(axis=2).max()
+    ratio = (images["pbl"] - images["surfaces"])[mask].mean() / scattered[mask].mean()
+    print(f"grey box 30 thick, {interface}: pbl / volpath scattered light {ratio:.3f}")
+    assert 0.95 < ratio < 1.07, ratio
