@@ -119,6 +119,36 @@ class BuiltScene:
         box = self.medium_box(m)
         return None if box is None else float(np.min(box[1] - box[0]))
 
+    def medium_is_convex(self, m: int, max_pairs: int = 4 * 10**8) -> bool:
+        """Whether medium m fills a convex region: one analytic sphere with m inside, or triangles whose every plane
+        has all the boundary's vertices on m's side (the geometric normal points to the exterior). A ray from any
+        point of m then meets its boundary once. False where m lies outside a surface (an object immersed in it,
+        the space around a shape), for spheres mixed with triangles, and for boundaries of more than max_pairs
+        (triangle, vertex) pairs, which are not tested."""
+        bound = self.surfaces_bounding(m)
+        if not bound.any() or np.any(self.surfaces[bound, SURF_MEDIUM_OUT] == m):
+            return False
+        sph = self.spheres[np.isin(self.spheres[:, SPH_SURFACE].astype(np.int64), np.flatnonzero(bound))]
+        tri = np.flatnonzero(np.isin(self.tri_surface, np.flatnonzero(bound))) if len(self.faces) else []
+        if len(sph):
+            return len(sph) == 1 and len(tri) == 0
+        F = self.faces[tri].astype(np.int64)
+        V = self.vertices[np.unique(F)].astype(np.float64)
+        if len(F) * len(V) > max_pairs:
+            return False
+        P = self.vertices[F].astype(np.float64)
+        n = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+        n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+        # the winding's normal oriented as the corners' shading normals (exterior)
+        n *= np.where(np.einsum("ij,ij->i", n, self.tri_normals[tri].sum(axis=1)) < 0, -1.0, 1.0)[:, None]
+        tol = 1e-6 * self.extent
+        offset = np.einsum("ij,ij->i", n, P[:, 0])
+        for a in range(0, len(F), max(1, 2**22 // max(len(V), 1))):
+            b = a + max(1, 2**22 // max(len(V), 1))
+            if np.any(n[a:b] @ V.T - offset[a:b, None] > tol):
+                return False
+        return True
+
     def reflects_into(self, m: int) -> bool:
         """Whether medium m's boundary reflects light back into it somewhere: a surface bounding it that is not a
         null boundary or an index-matched dielectric."""

@@ -142,6 +142,7 @@ def bounced_cache(cache: Path, samples: Path, pbl: C.PblSettings, table_names: d
     def first_bounced(m: int, build):
         key = key_of(kind="bounced-samples", samples=samples.name, medium=m, tables=table_names.get(m),
                      bounce_samples=pbl.bounce_samples, generations=pbl.bounce_generations,
+                     near_sources=pbl.bounce_near_sources,
                      segments=pbl.segments_per_beam, reflections=pbl.max_internal_reflections,
                      cut_size=pbl.cut_size, clamp=pbl.clamp, beam_width=pbl.beam_width,
                      version=BOUNCED_FORMAT_VERSION, sources=package_stamp())

@@ -7,7 +7,9 @@ most of the light in a high-albedo medium behind glass (wax, milk).
 
 The paper stores this light at surface samples as a diffuse value and single-scatters it (eq. 7). Here it is
 carried the same way as the light from the lights, as beams:
-1. boundary points x_j (blue noise on the surfaces bounding the medium, area A_j, inward normal n_j);
+1. boundary points x_j on the surfaces bounding the medium (area A_j, inward normal n_j): blue noise, and in a
+   convex medium points shot from the sources in uniform directions, where the arriving light is peaked; the two
+   are weighted by the balance heuristic (gather_points);
 2. from each, a cosine-sampled direction w into the medium; the radiance arriving at x_j from w, L_in, is the
    camera estimator (single + double + multiple of the previous generation's samples) along that ray;
 3. that light is reflected specularly: a beam from x_j along the mirror direction, of power
@@ -33,10 +35,9 @@ import numpy as np
 from numba import njit, prange
 
 from pbvol_cli.geometry.intersect import closest_surface_hits
-from pbvol_cli.geometry.scene_build import (DIELECTRIC, SPH_SURFACE, SURF_MEDIUM_IN, SURF_TYPE,
-                                           BuiltScene)
+from pbvol_cli.geometry.scene_build import DIELECTRIC, SPH_SURFACE, SURF_MEDIUM_IN, SURF_TYPE, BuiltScene
 from pbvol_cli.physics.fresnel import fresnel_dielectric
-from pbvol_cli.physics.sampling import cosine_around, rand, seed_state
+from pbvol_cli.physics.sampling import cosine_around, rand, seed_state, uniform_sphere
 from pbvol_cli.pointbased.beams import Beams, beam_segments, layer_reflectance, slab_reflectance
 from pbvol_cli.pointbased.gather import eval_segments, segment_planes
 from pbvol_cli.pointbased.surface_samples import BOUNDARY_STREAM, SHARING_RADIUS, poisson_disk, share_among_neighbours
@@ -53,27 +54,115 @@ TAIL_RATIO_MAX = 0.9  # generation-to-generation ratio the tail is extrapolated 
 
 def boundary_points(bs: BuiltScene, medium: int, count: int, seed: int, generation: int = 0):
     """About `count` blue-noise points on the surfaces bounding `medium`, a set of its own for each generation.
-    Returns (positions, inward normals, surface ids, area per point (scene units^2), the points' minimum distance);
-    empty when no dielectric surface bounds it."""
+    Returns (positions, inward normals, surface ids, area per point (scene units^2), the points' minimum distance,
+    geometric normals (exterior)); empty when no dielectric surface bounds it."""
     surf = bs.surfaces
-    ids = np.flatnonzero(bs.surfaces_bounding(medium) & (surf[:, SURF_TYPE] == DIELECTRIC)).astype(np.int64)
+    ids = _reflecting_surfaces(bs, medium)
     if len(ids) == 0:
-        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64), 0.0, 0.0
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64), 0.0, 0.0, np.zeros((0, 3))
     tri = np.isin(bs.tri_surface, ids)
     sph = bs.spheres[np.isin(bs.spheres[:, SPH_SURFACE].astype(np.int64), ids)]
     # streams apart from the light samples' and from the generation before, whose beams leave from its points: on
     # one stream each point gathered beside a beam's entry, and a dense body's arriving light read 14x too high
-    pos, nrm, sid, area, radius = poisson_disk(bs.vertices, bs.faces[tri], bs.tri_normals[tri],
-                                               bs.tri_surface[tri], sph, count, seed, 8,
-                                               BOUNDARY_STREAM + generation)
+    pos, nrm, sid, area, radius, gnrm = poisson_disk(bs.vertices, bs.faces[tri], bs.tri_normals[tri],
+                                                     bs.tri_surface[tri], sph, count, seed, 8,
+                                                     BOUNDARY_STREAM + generation, geometric=True)
     inward = np.where((surf[sid, SURF_MEDIUM_IN] == medium)[:, None], -nrm, nrm)  # normals point to the exterior
-    return pos, inward, sid, area, radius
+    return pos, inward, sid, area, radius, gnrm
+
+
+def _reflecting_surfaces(bs: BuiltScene, medium: int) -> np.ndarray:
+    """The dielectric surfaces bounding `medium` (their rows)."""
+    return np.flatnonzero(bs.surfaces_bounding(medium) & (bs.surfaces[:, SURF_TYPE] == DIELECTRIC)).astype(np.int64)
+
+
+SOURCE_LIST = 4096  # sources, drawn by scattered power, that the near-source boundary points are shot from
+
+
+def source_list(sets: list, seed: int, generation: int) -> np.ndarray:
+    """SOURCE_LIST points (M, 3) drawn with replacement, by scattered power (all channels), from the volume
+    samples of `sets` (SampleSets): their segments' centres, inside the medium."""
+    centre = np.concatenate([d.kernel.centre for d in sets])
+    weight = np.concatenate([d.scat.sum(axis=1) for d in sets])
+    cum = np.cumsum(weight)
+    if len(cum) == 0 or cum[-1] <= 0:
+        return np.zeros((0, 3))
+    u = np.random.default_rng([seed, 0xB5, generation]).random(SOURCE_LIST) * cum[-1]
+    return np.ascontiguousarray(centre[np.minimum(np.searchsorted(cum, u, side="right"), len(cum) - 1)])
+
+
+@njit(parallel=True, cache=True)
+def _shot_rays(src, seed, stream, origins, dirs):
+    """Ray k: from a source of the list chosen uniformly, in a direction uniform over the sphere."""
+    for k in prange(origins.shape[0]):
+        st = np.empty(1, np.uint64)
+        st[0] = seed_state(seed, stream, k)
+        i = min(int(rand(st, 0) * src.shape[0]), src.shape[0] - 1)
+        d = uniform_sphere(rand(st, 0), rand(st, 0))
+        for c in range(3):
+            origins[k, c] = src[i, c]
+            dirs[k, c] = d[c]
+
+
+def near_source_points(bs: BuiltScene, caster, medium: int, src: np.ndarray, attempts: int, seed: int,
+                       generation: int):
+    """The boundary points that `attempts` rays from the sources `src` (source_list) meet first, where they meet a
+    dielectric surface bounding a convex `medium`: the light arriving at the boundary is peaked next to the
+    sources near it, which blue-noise points tens of mean free paths apart seldom see (docs/pbl.md, section 8).
+    Returns (positions, inward shading normals, surface ids, geometric normals (exterior))."""
+    origins, dirs = np.zeros((attempts, 3)), np.zeros((attempts, 3))
+    _shot_rays(src, seed, 0xB600 + generation, origins, dirs)
+    t, sid, ng, ns = closest_surface_hits(caster, bs, origins, dirs)
+    hit = np.flatnonzero(np.isfinite(t) & np.isin(sid, _reflecting_surfaces(bs, medium)))
+    pos = origins[hit] + t[hit, None] * dirs[hit]
+    sid = sid[hit]
+    inward = np.where((bs.surfaces[sid, SURF_MEDIUM_IN] == medium)[:, None], -ns[hit], ns[hit])
+    return pos, inward, sid, ng[hit]
+
+
+@njit(parallel=True, cache=True)
+def source_density(pos, gnrm, src, out):
+    """out[j]: the density (1/scene units^2) of the near-source points at boundary point j, the mean over the
+    sources of cos(theta_j) / (4 pi r^2): a direction uniform over the sphere from a source inside a convex body
+    meets its boundary once."""
+    for j in prange(pos.shape[0]):
+        acc = 0.0
+        for i in range(src.shape[0]):
+            d0, d1, d2 = pos[j, 0] - src[i, 0], pos[j, 1] - src[i, 1], pos[j, 2] - src[i, 2]
+            r2 = max(d0 * d0 + d1 * d1 + d2 * d2, 1e-300)
+            acc += abs(d0 * gnrm[j, 0] + d1 * gnrm[j, 1] + d2 * gnrm[j, 2]) / (4.0 * math.pi * r2 * math.sqrt(r2))
+        out[j] = acc / max(src.shape[0], 1)
+
+
+def gather_points(bs: BuiltScene, caster, medium: int, count: int, seed: int, generation: int, sets: list,
+                  near_share: float):
+    """The boundary points of one generation's gather: blue noise over the boundary and, for a convex medium, a
+    share `near_share` of `count` shot from the sources of `sets` (near_source_points), the two combined by the
+    balance heuristic: point j's area is 1 / (n_blue / A + n_shot p_src(x_j)), A the boundary's area.
+    Returns (positions, inward normals, surface ids, areas in scene units^2 (n,), or one for all blue noise, the
+    spacing of `count` blue-noise points, the area a point has among `count` blue-noise ones)."""
+    shots = int(round(near_share * count)) if near_share > 0 else 0
+    pos, nin, sid, area, spacing, gnrm = boundary_points(bs, medium, max(count - shots, 1), seed, generation)
+    n_blue = len(pos)
+    if n_blue == 0:
+        return pos, nin, sid, np.zeros(0), 0.0, 0.0
+    src = source_list(sets, seed, generation) if shots else np.zeros((0, 3))
+    if len(src) == 0:
+        return pos, nin, sid, area, spacing, area
+    total = area * n_blue
+    # the points' spacing and area as if all `count` were blue noise: the sharing radius and the beams' width
+    spacing *= math.sqrt(n_blue / count)
+    p2, n2, s2, g2 = near_source_points(bs, caster, medium, src, shots, seed, generation)
+    pos, nin, sid, gnrm = (np.concatenate(a) for a in ((pos, p2), (nin, n2), (sid, s2), (gnrm, g2)))
+    density = np.zeros(len(pos))
+    source_density(pos, gnrm, src, density)
+    return pos, nin, sid, 1.0 / (n_blue / total + shots * density), spacing, total / count
 
 
 @njit(parallel=True, cache=True)
 def _reflected_beams(surfaces, medium, pos, nin, sid, w, L, area, eps, R2, bpos, bdir, bpow):
-    """Beam j: from x_j along the mirror image of the arriving light's direction (-w), power pi F L A_j (F with
-    the glass wall behind the boundary, if any: slab_reflectance)."""
+    """Beam j: from x_j along the mirror image of the arriving light's direction (-w), power pi F L A_j (area[j];
+    F with the glass wall behind the boundary, if any: slab_reflectance)."""
     for j in prange(pos.shape[0]):
         s = sid[j]
         inside_is_interior = surfaces[s, SURF_MEDIUM_IN] == medium
@@ -84,7 +173,7 @@ def _reflected_beams(surfaces, medium, pos, nin, sid, w, L, area, eps, R2, bpos,
             # the light travels along -w; mirrored: -w + 2 (w . n) n, into the medium
             bdir[j, k] = -w[j, k] + 2.0 * c * nin[j, k]
             bpos[j, k] = pos[j, k] + eps * nin[j, k]
-            bpow[j, k] = math.pi * F * L[j, k] * area
+            bpow[j, k] = math.pi * F * L[j, k] * area[j]
 
 
 @njit(parallel=True, cache=True)
@@ -111,31 +200,35 @@ def robust_total(power: np.ndarray) -> np.ndarray:
     return np.minimum(live, cap[None, :]).sum(axis=0)
 
 
-def arrival_bound(L: np.ndarray, area: float, scattered: np.ndarray) -> np.ndarray:
+def arrival_bound(L: np.ndarray, area, scattered: np.ndarray) -> np.ndarray:
     """Per channel, the factor (<= 1) that keeps the flux the gather says arrives at the boundary from inside,
-    sum_j pi L_j A_j (cosine-sampled radiance L_j (n, 3) over points of area A), within the power the sources
-    scattered (3,): scattered light is absorbed or reaches the boundary, so no more can arrive. The estimators
-    break this bound where the table's images are poor, most near the boundary of an optically thick, high-albedo
-    body (a marble sphere 270 mean free paths across: a generation's light arriving 6-13x what it scattered), and a
-    generation-to-generation ratio above 1 then grows without bound (docs/pbl.md)."""
-    arriving = np.pi * area * L.sum(axis=0)
+    sum_j pi L_j A_j (cosine-sampled radiance L_j (n, 3) at points of area A_j: `area`, (n,) or one for all),
+    within the power the sources scattered (3,): scattered light is absorbed or reaches the boundary, so no more
+    can arrive. The estimators break this bound where the table's images are poor, most near the boundary of an
+    optically thick, high-albedo body (a marble sphere 270 mean free paths across: a generation's light arriving
+    6-13x what it scattered), and a generation-to-generation ratio above 1 then grows without bound (docs/pbl.md)."""
+    arriving = np.pi * area * L.sum(axis=0) if np.ndim(area) == 0 else np.pi * (area[:, None] * L).sum(axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(arriving > scattered, scattered / arriving, 1.0)
 
 
 def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, source, make_set, count: int,
-                    generations: int, segments: int, max_reflections: int, settings, seed: int, extra=None):
+                    generations: int, segments: int, max_reflections: int, settings, seed: int, extra=None,
+                    near_share: float = 0.0):
     """Volume samples of the light scattered in `medium` and reflected by its boundary, `generations` times.
 
     source: the medium's SampleSet of the lights' volume samples; extra: another SampleSet whose scattered light
     the first generation gathers too (the light the scene sent back: volume_samples.returned_samples), or None;
-    make_set(samples) builds one from a namespace of v_* arrays; settings: the gather rays' GatherSettings.
-    Returns the union of the generations as such a namespace, or None when the boundary reflects nothing."""
+    make_set(samples) builds one from a namespace of v_* arrays; settings: the gather rays' GatherSettings;
+    near_share: the share of the `count` boundary points shot from the sources (gather_points; a convex medium
+    only, else 0). Returns the union of the generations as such a namespace, or None when the boundary reflects
+    nothing."""
     med = source.medium  # (with the flat faces of its boundary)
     gens, emitted, robust = [], [], []
     data = source
     for g in range(generations):
-        pos, nin, sid, area, spacing = boundary_points(bs, medium, count, seed, g)
+        sources = [data] if g > 0 or extra is None else [data, extra]
+        pos, nin, sid, area, spacing, width = gather_points(bs, caster, medium, count, seed, g, sources, near_share)
         n = len(pos)
         if n == 0:
             return None
@@ -145,7 +238,6 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
         ok = np.flatnonzero(np.isfinite(t))
         L = np.zeros((n, 3))
         planes = segment_planes(pos + bs.eps * nin, w, t, nin, ng)
-        sources = [data] if g > 0 or extra is None else [data, extra]
         for d in sources:
             out = np.zeros((n, 3, 3))
             eval_segments(pool, threads, ok, pos + bs.eps * nin, w, np.ones((n, 3)), np.where(np.isfinite(t), t, 0.0),
@@ -157,7 +249,8 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
         inner = pos + bs.eps * nin
         t0, s0, ng0, ns0 = closest_surface_hits(caster, bs, inner, -w)
         R2 = layer_reflectance(caster, bs, inner, -w, t0, s0, ng0, ns0)
-        _reflected_beams(bs.surfaces, medium, pos, nin, sid, w, L, area, bs.eps, R2, bpos, bdir, bpow)
+        _reflected_beams(bs.surfaces, medium, pos, nin, sid, w, L, np.broadcast_to(area, n).copy(), bs.eps, R2, bpos,
+                         bdir, bpow)
         rob = robust_total(bpow)  # before the sharing spreads a spike over its neighbours
         smoothed = np.zeros_like(bpow)
         share_among_neighbours(pos, bpow, SHARING_RADIUS * spacing, smoothed)
@@ -166,7 +259,7 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
         if len(live) == 0:
             break
         beams = Beams(bpos[live], bdir[live], bpow[live], np.full(len(live), medium, np.int64),
-                      np.full(len(live), area), nin[live].copy())
+                      np.full(len(live), width), nin[live].copy())
         seg = beam_segments(caster, bs, beams, segments, max_reflections,
                             seed + 7919 * (g + 1))
         gen = SimpleNamespace(**{f"v_{k}": v for k, v in seg.items()})

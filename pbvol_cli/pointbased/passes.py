@@ -146,7 +146,9 @@ def _reflected(built, m: int, lit: SampleSet, back, tables: tuple, pbl, seed: in
                                lambda smp: SampleSet(smp, m, built.media, tables, pbl.beam_width,
                                                      lit.medium.faces, lit.medium.image_k),
                                pbl.bounce_samples, pbl.bounce_generations, max(1, pbl.segments_per_beam // 4),
-                               pbl.max_internal_reflections, gather, seed, extra)
+                               pbl.max_internal_reflections, gather, seed, extra,
+                               pbl.bounce_near_sources if pbl.bounce_near_sources > 0 and built.medium_is_convex(m)
+                               else 0.0)
     finally:
         caster.close()
         if pool is not None:

@@ -25,9 +25,10 @@ BOUNDARY_STREAM = 0xB200  # the bounced light's boundary points (bounced.py), + 
 
 
 @njit(cache=True)
-def _candidates(V, F, tri_normals, cum_area, spheres, sphere_cum, n, seed, stream, pos, nrm, surf_idx, tri_surface):
+def _candidates(V, F, tri_normals, cum_area, spheres, sphere_cum, n, seed, stream, pos, nrm, surf_idx, tri_surface,
+                gnrm):
     """n candidates, area-weighted over triangles (cum_area) then spheres (sphere_cum, continuing the sums), from
-    the random stream (seed, stream)."""
+    the random stream (seed, stream); nrm the shading normal, gnrm the geometric one (both exterior)."""
     st = np.empty(1, np.uint64)
     st[0] = seed_state(seed, stream, 0)
     total = sphere_cum[-1] if sphere_cum.shape[0] > 0 else cum_area[-1]
@@ -47,6 +48,13 @@ def _candidates(V, F, tri_normals, cum_area, spheres, sphere_cum, n, seed, strea
             ln = math.sqrt(nrm[k, 0] ** 2 + nrm[k, 1] ** 2 + nrm[k, 2] ** 2)
             for c in range(3):
                 nrm[k, c] /= ln
+            a0, a1, a2 = V[F[t, 1], 0] - V[F[t, 0], 0], V[F[t, 1], 1] - V[F[t, 0], 1], V[F[t, 1], 2] - V[F[t, 0], 2]
+            b0, b1, b2 = V[F[t, 2], 0] - V[F[t, 0], 0], V[F[t, 2], 1] - V[F[t, 0], 1], V[F[t, 2], 2] - V[F[t, 0], 2]
+            g0, g1, g2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+            lg = max(math.sqrt(g0 * g0 + g1 * g1 + g2 * g2), 1e-300)
+            if g0 * nrm[k, 0] + g1 * nrm[k, 1] + g2 * nrm[k, 2] < 0.0:
+                lg = -lg  # the winding's normal oriented as the shading normal (exterior)
+            gnrm[k, 0], gnrm[k, 1], gnrm[k, 2] = g0 / lg, g1 / lg, g2 / lg
             surf_idx[k] = tri_surface[t]
         else:
             s = np.searchsorted(sphere_cum, u, side="right")
@@ -54,6 +62,7 @@ def _candidates(V, F, tri_normals, cum_area, spheres, sphere_cum, n, seed, strea
             d = uniform_sphere(rand(st, 0), rand(st, 0))
             for c in range(3):
                 nrm[k, c] = d[c]
+                gnrm[k, c] = d[c]
                 pos[k, c] = spheres[s, SPH_CENTER + c] + spheres[s, SPH_RADIUS] * d[c]
             surf_idx[k] = int(spheres[s, SPH_SURFACE])
 
@@ -97,12 +106,13 @@ def _dart_throw(pos, radius, lo, dims, keep):
 
 
 def poisson_disk(V, F, tri_normals, tri_surface, spheres, target: int, seed: int, oversample: int = 8,
-                 stream: int = LIGHT_SAMPLE_STREAM):
+                 stream: int = LIGHT_SAMPLE_STREAM, geometric: bool = False):
     """About `target` blue-noise samples on the given triangles and analytic spheres, from the random stream
     (seed, stream): point sets of one surface that must not coincide (the light samples and the bounced light's
     boundary points) take different streams.
 
-    Returns (positions (n,3), normals (n,3) pointing to the exterior, surface ids (n,), area per sample, radius).
+    Returns (positions (n,3), normals (n,3) pointing to the exterior, surface ids (n,), area per sample, radius),
+    and with `geometric` the surfaces' geometric normals (n,3) (exterior) last.
     The radius is chosen so that dart throwing saturates near the target (random close packing of disks covers
     about 0.55 of the plane: radius = sqrt(0.55 A / (pi N / 4))... with 2r the disk diameter).
     """
@@ -122,17 +132,18 @@ def poisson_disk(V, F, tri_normals, tri_surface, spheres, target: int, seed: int
     # adsorption); solve N pi (r/2)^2 = 0.547 A for r
     radius = math.sqrt(0.547 * area / (target * math.pi / 4.0))
     n = max(target * oversample, 64)
-    pos, nrm = np.zeros((n, 3)), np.zeros((n, 3))
+    pos, nrm, gnrm = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
     sid = np.zeros(n, np.int64)
     _candidates(V, F, np.asarray(tri_normals, np.float64).reshape(-1, 3, 3) if len(F) else np.zeros((0, 3, 3)),
                 cum if len(cum) else np.zeros(0), sph, sph_cum if len(sph) else np.zeros(0), n, seed, stream, pos, nrm,
                 sid,
-                np.asarray(tri_surface, np.int64) if len(F) else np.zeros(0, np.int64))
+                np.asarray(tri_surface, np.int64) if len(F) else np.zeros(0, np.int64), gnrm)
     lo = pos.min(0) - radius
     dims = np.maximum(np.ceil((pos.max(0) + radius - lo) / radius).astype(np.int64), 1)
     keep = np.zeros(n, np.bool_)
     count = _dart_throw(pos, radius, lo, dims, keep)
-    return pos[keep], nrm[keep], sid[keep], area / count, radius
+    out = pos[keep], nrm[keep], sid[keep], area / count, radius
+    return (*out, gnrm[keep]) if geometric else out
 
 
 @njit(parallel=True, cache=True)

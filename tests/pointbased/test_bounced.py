@@ -11,7 +11,8 @@ from pbvol_cli.pipeline.render import RenderOptions, render_scene
 from pbvol_cli.geometry.raycast import TriangleCaster
 from pbvol_cli.multiple_scattering.table import empty_table
 from pbvol_cli.config import PblSettings
-from pbvol_cli.pointbased.bounced import arrival_bound, boundary_points, bounced_samples, robust_total
+from pbvol_cli.pointbased.bounced import (arrival_bound, boundary_points, bounced_samples, gather_points, robust_total,
+                                          source_density)
 from pbvol_cli.pointbased.camera_pass import render_pbl
 from pbvol_cli.pointbased.gather import GatherSettings
 from pbvol_cli.pointbased.light_samples import place_light_samples
@@ -28,7 +29,7 @@ def _sphere(eta=1.5, mfp=1.0):
 
 def test_boundary_points_cover_the_boundary_with_inward_normals(tmp_path):
     bs = build(tmp_path, _sphere())
-    pos, nin, sid, area, spacing = boundary_points(bs, 0, 500, seed=3)
+    pos, nin, sid, area, spacing, _ = boundary_points(bs, 0, 500, seed=3)
     assert abs(len(pos) * area / (4 * np.pi) - 1) < 1e-9  # the areas tile the sphere
     assert np.allclose(np.linalg.norm(pos, axis=1), 1.0, atol=1e-6)
     assert np.all(np.sum(nin * pos, axis=1) < -0.99)  # inward: toward the centre
@@ -47,6 +48,50 @@ def test_each_generation_gathers_at_points_of_its_own(tmp_path):
         assert np.median(nearest) > 0.01, np.median(nearest)
 
 
+def _box_sources(n=2000, seed=0):
+    """Sources packed just under the top face of a box 30 x 10 x 30 (y from 0 to 10), as a SampleSet's fields."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(seed)
+    c = np.c_[rng.uniform(-14, 14, n), 10.0 - rng.exponential(0.05, n), rng.uniform(-14, 14, n)]
+    return c, SimpleNamespace(kernel=SimpleNamespace(centre=c), scat=np.ones((n, 3)))
+
+
+@pytest.mark.parametrize("share", [0.5, 0.8])
+def test_points_shot_from_the_sources_integrate_a_peaked_flux_without_bias(tmp_path, share):
+    """gather_points: blue noise and points shot from the sources, weighted by the balance heuristic, are an
+    unbiased quadrature of the boundary. On a box 30 x 10 x 30 with sources 0.05 under its top face, the flux
+    every source sends straight to the boundary (cos / (4 pi r^2), peaked within a few hundredths of each
+    source) integrates to 1 over the closed box. Blue noise alone misses the peaks and reads low and scattered
+    (0.94 +- 0.03 over 20 seeds); with the shots 1.00 +- 0.02. The areas still tile the boundary."""
+    bs = build(tmp_path, {"camera": camera((8, 8)), "lights": [{"type": "environment", "radiance": 1.0}],
+                          "shapes": [{"type": "box", "center": [0.0, 5.0, 0.0], "size": [30.0, 10.0, 30.0],
+                                      "interface": "dielectric", "eta": 1.5,
+                                      "medium": {"albedo": 0.999, "mean_free_path": 0.04, "g": 0.0}}]})
+    assert bs.medium_is_convex(0)
+    c, sources = _box_sources()
+    caster = TriangleCaster(bs.vertices, bs.faces, 2)
+    flux, tiles = {}, {}
+    try:
+        for s in (0.0, share):
+            est, area_sum = [], []
+            for seed in range(12):
+                pos, nin, sid, area, spacing, width = gather_points(bs, caster, 0, 1000, seed, 0, [sources], s)
+                normal = np.zeros_like(pos)  # the box's faces: the axis of the inward normal
+                normal[np.arange(len(pos)), np.argmax(np.abs(nin), axis=1)] = 1.0
+                f = np.zeros(len(pos))
+                source_density(pos, normal, c, f)
+                area = np.broadcast_to(area, len(pos))
+                est.append(float((f * area).sum()))
+                area_sum.append(float(area.sum()))
+            flux[s], tiles[s] = (np.mean(est), np.std(est) / np.sqrt(len(est))), np.mean(area_sum)
+    finally:
+        caster.close()
+    print("flux integral (mean, its error) by share:", flux, "areas:", tiles)
+    assert abs(flux[share][0] - 1.0) < 0.04 and flux[share][1] < flux[0.0][1]
+    assert abs(tiles[share] / 3000.0 - 1.0) < 0.01
+
+
 def test_a_dense_bodys_gathered_light_stays_within_what_its_sources_scattered(tmp_path, monkeypatch):
     """A box 300 mean free paths thick (albedo 0.995) behind eta 1.5, its light samples 12 mean free paths apart:
     the flux each generation's gather says arrives at the boundary is at most the power its sources scattered,
@@ -57,7 +102,8 @@ def test_a_dense_bodys_gathered_light_stays_within_what_its_sources_scattered(tm
     seen = []
 
     def spy(L, area, scattered):
-        seen.append(float((np.pi * area * L.sum(axis=0) / np.maximum(scattered, 1e-30)).max()))
+        a = np.broadcast_to(area, L.shape[:1])
+        seen.append(float((np.pi * (a[:, None] * L).sum(axis=0) / np.maximum(scattered, 1e-30)).max()))
         return arrival_bound(L, area, scattered)
 
     monkeypatch.setattr(bounced, "arrival_bound", spy)
