@@ -462,8 +462,9 @@ class PblSettings(Strict):
     bounce_generations: Int = Field(3, ge=0, le=64, description="reflections of scattered light followed (0: none)")
     bounce_near_sources: Num = Field(0.0, ge=0, le=0.95, description="share of the boundary points shot from the "
                                      "scattered light's sources instead of spread as blue noise, in a convex "
-                                     "medium: steadier generations, the wax sphere's bounced layer a quarter less "
-                                     "noisy per pass, at a sixth more time a pass (docs/pbl.md, section 8)")
+                                     "medium (others keep blue noise): steadier generations, the wax sphere's "
+                                     "bounced layer a quarter less noisy per pass, for a sixth to three tenths "
+                                     "more time (docs/pbl.md, section 8)")
     components: tuple[Literal["single", "double", "multiple", "bounced"], ...] = Field(
         ("single", "double", "multiple", "bounced"), description="the medium's terms rendered (each is a layer of the "
         "EXR; the command line's --components overrides)")
