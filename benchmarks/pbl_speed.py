@@ -18,7 +18,7 @@ timed; peak memory is per process):
   4. with --memory-check, pbl's peak memory at 512 x 512, 1 spp;
   5. with --reuse-curves, the volpath and Mitsuba curves of an earlier run's pbl_speed.json instead (they do not
      depend on pbl's code; the reference must be the same, as it is from the cache);
-  6. with --pass-only, step 2 alone (no reference), --repeat rounds of it, their medians:
+  6. with --pass-only, step 2 alone (no reference), --repeat rounds of it after one not counted, their medians:
      <out>/pass_cost.md;
   6a. with --set k=v, pbl renders the scene with that [render.pbl] setting (a copy in <out>/scenes/);
   6b. pbl's time at each of its renders over the time volpath takes to the same error (a second table), and pbl's
@@ -178,15 +178,16 @@ def equal_error_table(rows: list[dict]) -> str:
 
 def pass_cost(args, res: str):
     """Step 2 alone, for every scene of args.scenes, args.repeat rounds of the two renders one after the other (a
-    16-spp volpath render's time moves by a quarter from run to run): the medians, their ratio and the rounds'
-    ratios. Writes <out>/pass_cost.md."""
+    16-spp volpath render's time moves by a quarter from run to run), after a round not counted: the medians, their
+    ratio and the rounds' ratios. Writes <out>/pass_cost.md."""
     lines = ["| scene | pass s (median) | volpath 16 spp s (median) | pass / volpath 16 | rounds' ratios |",
              "|---|---|---|---|---|"]
     for name in args.scenes.split(","):
         scene = ROOT / "configs" / f"{name}.toml"
         scenes = {"pbl": with_pbl(scene, args.out / "scenes", args.pbl), "volpath": scene}
         rounds = [{m: render(scenes[m], m, spp, 1, res, args.threads, args.cache, args.out / f"{name}_{m}.exr")[0][
-            "time_s"] for m, spp in (("pbl", 1), ("volpath", 16))} for _ in range(args.repeat)]
+            "time_s"] for m, spp in (("pbl", 1), ("volpath", 16))} for _ in range(args.repeat + 1)][1:]
+        # (a first round not counted: after any change to the package's sources its first render compiles kernels)
         t = {m: statistics.median(r[m] for r in rounds) for m in ("pbl", "volpath")}
         ratios = ", ".join(f"{r['pbl'] / r['volpath']:.1f}" for r in rounds)
         lines.append(f"| {name} | {t['pbl']:.2f} | {t['volpath']:.2f} | {t['pbl'] / t['volpath']:.1f}× | {ratios} |")
