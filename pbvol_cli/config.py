@@ -410,10 +410,6 @@ class PblSettings(Strict):
     bounced_bins: Num = Field(1.0, ge=1, le=8, description="the bounced light's bins this many times the "
                               "lights' in depth, width and direction: fewer evaluations and more blur, worth it where "
                               "the bounced light is a small share of the image (the oil sphere: 2; docs/pbl.md)")
-    weak_bins: Num = Field(1.0, ge=1, le=8, description="camera branches of throughput below 0.3 (a glass's and a "
-                           "liquid's surfaces seen from inside) share their smooth terms in bins this many times the "
-                           "others' in depth, width and direction: their points share few bins, and a bin's blur "
-                           "weighs little there (the milk glass: 2; docs/pbl.md); 1: the same bins")
     term_shares: Bool = Field(True, description="a bin evaluates the lesser of double and multiple scattering (by "
                               "its second moment in the pass so far) at a random share of the bins, weighted by its "
                               "inverse: unbiased, less time for the same noise (docs/pbl.md); false: every bin both")

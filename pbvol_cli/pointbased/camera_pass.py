@@ -33,7 +33,7 @@ from pbvol_cli.physics.lights import ENVIRONMENT, LIGHT_RGB, LIGHT_TYPE, emitted
 from pbvol_cli.physics.sampling import cosine_hemisphere, mix64, rand
 from pbvol_cli.pointbased.gather import (LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_SINGLE, DeferredSingle, eval_segments,
                                          gather_settings, segment_planes)
-from pbvol_cli.pointbased.radiance_cache import WEAK_BRANCH, DeferredBins, TermShares, cache_settings
+from pbvol_cli.pointbased.radiance_cache import DeferredBins, TermShares, cache_settings
 from pbvol_cli.pointbased.volume_samples import PLANE_COLS, medium_params, scattered_share
 from pbvol_cli.render.camera import camera_rays_for
 from pbvol_cli.render.interfaces import dielectric_fresnel, incident_side, indices, medium_beyond, shadow_ray_length
@@ -716,8 +716,6 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
     limits = PathLimits(bs.eps, pbl.max_split_depth, pbl.diffuse_bounces,
                         0 if segment is None else 2 if segment.through_dielectrics else 1)
     cache, cache_b = cache_settings(pbl), cache_settings(pbl, single=True)  # the bounced light is smooth throughout
-    # (and the weak branches' bins coarser still, where pbl.weak_bins > 1)
-    cache_w, cache_bw = cache_settings(pbl, weak=True), cache_settings(pbl, single=True, weak=True)
     p_diffuse = dshare.p if dshare is not None else 1.0
     entered = np.zeros(n)  # eta beyond / eta before where a ray has just entered a medium (0: it has not)
     while len(pos):
@@ -739,7 +737,6 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
             ms = sub[evm[sub]]  # the paths that evaluate the medium in this pass
             med = lit.medium if lit is not None else medium_params(bs.media, int(m))  # (lit's: with its faces)
             if lit is not None and lit.count and len(ms):
-                weak = _channel_max(beta) < WEAK_BRANCH if pbl.weak_bins > 1.0 else None  # (per ray, as traced)
                 # weak branches (internal reflections) are evaluated with probability beta_max / roulette,
                 # their weight divided by it: unbiased, and most of the cost was in branches of weight < 0.01.
                 # Single scattering has a threshold of its own: a branch's single scattering costs a few point
@@ -756,8 +753,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                     s_lit, q_lit = settings._replace(single=False), _shares(term_shares, m, "lit")
                     defer = None if bins is None else partial(
                         bins.add, (int(m), "lit"), lit.kernel, med, s_lit, cache, q_lit,
-                        (None, layers["double"], layers["multiple"]), pixel=pixel,
-                        weak=None if weak is None else (cache_w, weak))
+                        (None, layers["double"], layers["multiple"]), pixel=pixel)
                     _measure_shares(bins, pool, threads, state, ev)
                     eval_segments(pool, threads, ev, pos, dirs, beta_ev, tev, rng, med, lit.kernel, s_lit, contrib,
                                   state >> 2, planes, cache, roulette_rng, q_lit, p_diffuse, defer)
@@ -769,8 +765,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                     q_b = _shares(term_shares, m, "bounced")
                     defer = None if bins is None else partial(
                         bins.add, (int(m), "bounced"), bounced.kernel, med, settings_b, cache_b, q_b,
-                        (layers["bounced"],) * 3, pixel=pixel,  # (its three terms make the bounced layer)
-                        weak=None if weak is None else (cache_bw, weak))
+                        (layers["bounced"],) * 3, pixel=pixel)  # (its three terms make the bounced layer)
                     _measure_shares(bins, pool, threads, state, evb)
                     eval_segments(pool, threads, evb, pos, dirs, beta_b, tev, rng, med, bounced.kernel, settings_b,
                                   cb3, state >> 2, planes, cache_b, roulette_rng, q_b, p_diffuse, defer)

@@ -80,16 +80,10 @@ class TermShares:
             self.second_moment[k] += shares[k] * float(np.sum((values[:, layer] * w_bin).sum(axis=1) ** 2))
 
 
-WEAK_BRANCH = 0.3  # camera branches of throughput below this (a glass's and a liquid's surfaces seen from inside)
-# take bins pbl.weak_bins times coarser: their points share few bins, and a bin's blur weighs little in the image
-# (config.PblSettings.weak_bins's description names this value)
-
-
-def cache_settings(pbl, single: bool = False, weak: bool = False) -> CacheSettings:
+def cache_settings(pbl, single: bool = False) -> CacheSettings:
     """The sharing of a scene's [render.pbl] (config.PblSettings); single: for the bounced light, whose bins are
-    pbl.bounced_bins times coarser in depth, width and direction; weak: for branches weaker than WEAK_BRANCH,
-    pbl.weak_bins times coarser (both: the product)."""
-    f = (float(pbl.bounced_bins) if single else 1.0) * (float(pbl.weak_bins) if weak else 1.0)
+    pbl.bounced_bins times coarser in depth, width and direction."""
+    f = float(pbl.bounced_bins) if single else 1.0
     return CacheSettings(f * float(pbl.cache_cell), f * float(max(pbl.cache_lateral, pbl.cache_cell)),
                          max(1, round(int(pbl.cache_directions) / f)), single)
 
@@ -420,21 +414,12 @@ class DeferredBins:
         return self.count >= DEFERRED_BIN_POINTS
 
     def add(self, key, vs, med, settings, cache: CacheSettings, term_shares, layers, idx, pos, dirs, beta, tseg, rng,
-            planes, pixel, weak=None):
+            planes, pixel):
         """The smooth terms' points of segments idx (shared_terms's) for pixels pixel[idx], under key (a medium and
         sample set: the points of one key are binned together). layers: three (npix, 3) arrays (or None) taking
-        the single, double and multiple contributions. weak: (CacheSettings, mask (n,)) or None: the segments of
-        the mask go under (key, "weak") with bins of that cache (cache_settings's weak)."""
+        the single, double and multiple contributions."""
         if len(idx) == 0:
             return
-        if weak is not None:
-            w = weak[1][idx]
-            if w.any():
-                self.add((key, "weak"), vs, med, settings, weak[0], term_shares, layers, idx[w], pos, dirs, beta,
-                         tseg, rng, planes, pixel)
-                idx = idx[~w]
-                if len(idx) == 0:
-                    return
         pts = scattered_points(idx, pos, dirs, beta, tseg, rng, med, settings.kmax_scattered, planes, per_mfp=True)
         part = self.parts.setdefault(key, (vs, med, settings, cache, term_shares, layers, []))
         part[6].append((pts.pos, pts.dir, pts.weight, pts.plane, pixel[pts.owner]))

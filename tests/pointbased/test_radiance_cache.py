@@ -304,15 +304,15 @@ def test_the_bounced_lights_coarser_bins_blur_it_by_a_bounded_share(tmp_path):
 
 def test_shared_terms_keep_every_smooth_layers_mean_in_a_render(tmp_path):
     """End to end (the lights' and the bounced samples, through the camera pass): the test sphere behind a
-    dielectric boundary rendered with the terms shared (the bounced light's bins twice as coarse: bounced_bins 2;
-    the internal reflections' twice as coarse again: weak_bins 2) and per point, six seeds each: the double,
-    multiple and bounced layers' means agree within 4 standard errors of the seed-to-seed spread."""
+    dielectric boundary rendered with the terms shared (the bounced light's bins twice as coarse: bounced_bins 2)
+    and per point, six seeds each: the double, multiple and bounced layers' means agree within 4 standard errors of
+    the seed-to-seed spread."""
     scene = medium_sphere_scene(surface_samples=800, segments_per_beam=4, bounce_samples=64)
     scene["camera"] = camera((16, 16), position=(0, 0, 3.5), fov=40)
     scene["shapes"][0].update(interface="dielectric", eta=1.33)  # a boundary that reflects: a bounced layer
     runs = {}
     for cell in (0.0, 0.5):
-        scene["render"]["pbl"].update(cache_cell=cell, bounced_bins=2.0, weak_bins=2.0)
+        scene["render"]["pbl"].update(cache_cell=cell, bounced_bins=2.0)
         runs[cell] = smooth_layers(tmp_path, scene, range(6))
     for j, name in enumerate(("double", "multiple", "bounced")):
         ma, mb = runs[0.0][:, j].mean((1, 2, 3)), runs[0.5][:, j].mean((1, 2, 3))
@@ -388,34 +388,3 @@ def test_points_of_a_segment_of_no_length_weigh_nothing():
     assert np.all(both.weight[both.owner == 0] == 0.0)
     np.testing.assert_array_equal(both.weight[both.owner == 1], alone.weight)
     assert np.all(alone.weight > 0)
-
-
-def test_weak_branches_take_bins_of_their_own_weak_bins_times_coarser():
-    """cache_settings(weak=True) makes bins weak_bins times as deep and wide with 1/weak_bins the directions (times
-    bounced_bins for the bounced light); DeferredBins.add puts the segments of the weak mask under (key, "weak")
-    with that cache and the rest under key, every segment's points held once; with no mask all stay under key."""
-    from types import SimpleNamespace
-
-    from pbvol_cli.pointbased.radiance_cache import DeferredBins
-    from pbvol_cli.pointbased.volume_samples import Medium
-
-    pbl = SimpleNamespace(cache_cell=0.5, cache_lateral=2.0, cache_directions=8, bounced_bins=2.0, weak_bins=2.0)
-    assert cache_settings(pbl) == CacheSettings(0.5, 2.0, 8, False)
-    assert cache_settings(pbl, weak=True) == CacheSettings(1.0, 4.0, 4, False)
-    assert cache_settings(pbl, single=True, weak=True) == CacheSettings(2.0, 8.0, 2, True)
-    med = Medium(np.array([0.5, 0.5, 0.5]), np.array([1.0, 1.1, 1.2]), 1, 0.0)
-    n = 6
-    pos, dirs = np.zeros((n, 3)), np.tile([0.0, 0.0, 1.0], (n, 1))
-    beta, tseg = np.ones((n, 3)), np.full(n, 2.0)
-    planes = segment_planes(pos, dirs, tseg, np.full((n, 3), np.nan), np.full((n, 3), np.nan))
-    mask = np.array([True, False, True, False, True, False])  # (segment 0 is not added: its mask is not read)
-    coarse = cache_settings(pbl, weak=True)
-    for weak, held in ((None, {"k": 5}), ((coarse, mask), {"k": 3, ("k", "weak"): 2})):
-        bins = DeferredBins(np.random.default_rng(1), n)
-        bins.add("k", None, med, GatherSettings(1, 8, 0.0, False, True, True, 4, 1), cache_settings(pbl), None,
-                 (None, None, None), np.arange(1, n), pos, dirs, beta, tseg, np.arange(n, dtype=np.uint64) + 1,
-                 planes, np.arange(n), weak)
-        assert {k: len(np.unique(np.concatenate([c[4] for c in part[6]]))) for k, part in bins.parts.items()} == held
-        assert bins.count == sum(len(c[4]) for part in bins.parts.values() for c in part[6])
-        if weak is not None:
-            assert bins.parts[("k", "weak")][3] == coarse and bins.parts["k"][3] == cache_settings(pbl)
