@@ -422,6 +422,11 @@ class PblSettings(Strict):
                                  "their measured second moment against the pass's variance, weighted by its inverse "
                                  "(unbiased; docs/pbl.md), with surface_paths = 0 (auto: a pass follows the passes "
                                  "before); false, or a fixed surface_paths: all of them")
+    diffuse_filter: Num = Field(4.0, ge=0, le=64, description="the medium's light that camera paths find after their "
+                                "first diffuse bounce, pooled among the first diffuse vertices of a pass in cubes "
+                                "this many pixel footprints wide (path-space filtering: the glow of a medium on a "
+                                "table converges with the medium, blurred over about a cell; the milk glass's "
+                                "error halved at two and eight passes; docs/pbl.md); 0: each path's own")
     similarity: Literal["none", "delta-eddington"] = Field(
         "none", description="delta-eddington: each Henyey-Greenstein medium of g > 0 is rendered as its "
         "delta-Eddington equivalent (a forward delta of weight g^2 folded into the beams: sigma_s x (1 - g^2), "

@@ -26,11 +26,12 @@ from numba import njit, prange
 
 from pbvol_cli.geometry.intersect import closest_surface_hits, light_hits, visible
 from pbvol_cli.geometry.raycast import TriangleCaster
-from pbvol_cli.geometry.scene_build import (DIELECTRIC, DIFFUSE, MIRROR, NULL, SURF_ALBEDO, SURF_ETA_IN, SURF_ETA_OUT,
-                                           SURF_TYPE, BuiltScene)
+from pbvol_cli.geometry.scene_build import (CAM_HEIGHT, CAM_UP, DIELECTRIC, DIFFUSE, MIRROR, NULL, SURF_ALBEDO,
+                                           SURF_ETA_IN, SURF_ETA_OUT, SURF_TYPE, BuiltScene)
 from pbvol_cli.physics.fresnel import reflect, refract
 from pbvol_cli.physics.lights import ENVIRONMENT, LIGHT_RGB, LIGHT_TYPE, emitted_toward, light_sample
 from pbvol_cli.physics.sampling import cosine_hemisphere, mix64, rand
+from pbvol_cli.pointbased.diffuse_filter import DiffuseVertices
 from pbvol_cli.pointbased.gather import (LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_SINGLE, DeferredSingle, eval_segments,
                                          gather_settings, segment_planes)
 from pbvol_cli.pointbased.radiance_cache import DeferredBins, TermShares, cache_settings
@@ -499,17 +500,26 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         den = diffuse.den.mean(axis=1) if diffuse.den is not None and pbl.surface_paths == 0 else np.ones(npix)
         bins = DeferredBins(np.random.default_rng([seed, p, 0xB125]), npix, 1.0 / (den * (k * k)), pbl.bin_splits)
         term_shares = {} if pbl.term_shares else None  # how often the bins evaluate double and multiple scattering
+        # the medium's light after a first diffuse bounce, pooled among neighbouring vertices (diffuse_filter)
+        vertices = single_v = None
+        if pbl.diffuse_filter > 0 and entry is None and segment is None:
+            vertices = DiffuseVertices(np.random.default_rng([seed, p, 0xD1F5]), pixel_angle(bs), pbl.diffuse_filter)
+            single_v = DeferredSingle()
         # (the segment term marches every path's segments with the batch's random numbers: its batches stay whole)
         surface_chunk = SURFACE_CHUNK if segment is None else chunk
         for c0, c1 in batch_bounds(per_pass, int(evm.sum()), chunk, surface_chunk):
             part = slice(c0, c1)
             path_surface = _trace_batch(bs, caster, pool, threads, media_data, seed, done + c0, pixels[part],
                                         samples[part], evm[part], k[pixels[part]], npix, settings, settings_b, pbl,
-                                        acc, single, entry_p, segment_p, term_shares, diffuse, bins)
+                                        acc, single, entry_p, segment_p, term_shares, diffuse, bins, vertices, single_v)
             if single.full() or part.stop == per_pass:
                 single.flush(pool, threads, acc["single"], npix)
+            if vertices is not None and (single_v.full() or part.stop == per_pass):
+                _flush_single_at_vertices(single_v, vertices, pool, threads)
             if part.stop == per_pass:
                 bins.flush(pool, threads)
+                if vertices is not None:
+                    vertices.flush([acc[name] if name in acc else None for name in COMPONENTS])
             for ch in range(3):
                 surface_sq[:, ch] += np.bincount(pixels[part], weights=path_surface[:, ch] ** 2, minlength=npix)
             if progress is not None:
@@ -534,6 +544,24 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
 Pilot = namedtuple("Pilot", ["counts", "surface_variance", "image"])
 Pilot.__doc__ = """What the pilot measured: the first two passes' path counts (npix,), one surface path's variance per
 pixel relative to the pilot's image squared + 0.01 (npix,), and that image (npix, 3: the surfaces' light alone)."""
+
+
+def pixel_angle(bs: BuiltScene) -> float:
+    """A pixel's angular width at the image's centre (radians)."""
+    cam = bs.camera
+    return 2.0 * float(np.linalg.norm(cam[CAM_UP:CAM_UP + 3])) / float(cam[CAM_HEIGHT])
+
+
+def _flush_single_at_vertices(single_v, vertices, pool, threads):
+    """The single scattering found after first diffuse vertices (single_v: gather.DeferredSingle whose 'pixels' are
+    vertex ids) into their store (DiffuseVertices)."""
+    if single_v.count == 0:
+        return
+    layer = np.zeros((vertices.count, 3))
+    single_v.flush(pool, threads, layer, vertices.count)
+    light = np.zeros((vertices.count, len(COMPONENTS), 3))
+    light[:, LAYER_SINGLE] = layer
+    vertices.accumulate(np.arange(vertices.count), light)
 
 
 def _pilot(bs, caster, pool, threads, seed: int, npix: int, width: int, pbl, settings, settings_b) -> Pilot:
@@ -687,7 +715,8 @@ def _measure_shares(bins, pool, threads, state, idx):
 
 
 def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samples, evm, kpaths, npix, settings,
-                 settings_b, pbl, layers, single, entry=None, segment=None, term_shares=None, dshare=None, bins=None):
+                 settings_b, pbl, layers, single, entry=None, segment=None, term_shares=None, dshare=None, bins=None,
+                 vertices=None, single_v=None):
     """Camera paths (sample samples[i] of pixel pixels[i]; `done` paths traced before them in this render), traced to
     the end, added into layers; the lights' single scattering into single (gather.DeferredSingle), which the caller
     flushes into layers["single"]; term_shares: the pass's radiance_cache.TermShares by (medium, "lit" or
@@ -696,7 +725,9 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
     moment measured; None: all of them, not measured); bins: the pass's radiance_cache.DeferredBins, which takes
     the smooth terms of the segments not after a diffuse bounce (flushed here when it is full, or before segments
     after a diffuse bounce take shares it has not measured yet; the caller flushes the rest; None: each depth's
-    bins evaluated at once). Path i
+    bins evaluated at once); vertices: the pass's diffuse_filter.DiffuseVertices, which takes the medium's light
+    found after a path's first diffuse bounce (its single scattering through single_v, a DeferredSingle keyed by
+    vertex; None: the light goes to the path's pixel). Path i
     evaluates
     the medium where evm[i], its medium terms weighted kpaths[i] (its pixel's path count in this pass), and the
     entry term (render_pbl) where it enters a medium. Returns each path's surface light (n, 3)."""
@@ -718,6 +749,8 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
     cache, cache_b = cache_settings(pbl), cache_settings(pbl, single=True)  # the bounced light is smooth throughout
     p_diffuse = dshare.p if dshare is not None else 1.0
     entered = np.zeros(n)  # eta beyond / eta before where a ray has just entered a medium (0: it has not)
+    vertex = np.full(n, -1, np.int64)  # each ray's first diffuse vertex in vertices (-1: none yet, or no filter)
+    travelled = np.zeros(n)  # the distance each ray's path has gone from the camera (a vertex's pixel footprint)
     while len(pos):
         t, surf, ng, ns = closest_surface_hits(caster, bs, pos, dirs)
         tl, li = np.empty(len(pos)), np.empty(len(pos), np.int64)
@@ -747,7 +780,12 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                     ev_s, beta_s = _roulette(ms, beta, kpaths, u, pbl.roulette_single)
                     # kmax points a segment, kmax_diffuse random ones after a diffuse bounce (as gather._segment)
                     diffuse = (state >> 2)[ev_s] > 0
-                    for part, kmax in ((ev_s[diffuse], settings.kmax_diffuse), (ev_s[~diffuse], settings.kmax)):
+                    after = ev_s[diffuse]
+                    if vertices is not None:  # pooled at the paths' first diffuse vertices (diffuse_filter)
+                        single_v.add(int(m), lit.kernel, med, after[vertex[after] >= 0], pos, dirs, beta_s, tev, rng,
+                                     settings.kmax_diffuse, planes, vertex)
+                        after = after[vertex[after] < 0]
+                    for part, kmax in ((after, settings.kmax_diffuse), (ev_s[~diffuse], settings.kmax)):
                         single.add(int(m), lit.kernel, med, part, pos, dirs, beta_s, tev, rng, kmax, planes, pixel)
                 if settings.double or settings.multiple:
                     s_lit, q_lit = settings._replace(single=False), _shares(term_shares, m, "lit")
@@ -794,6 +832,10 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
         if len(need) and dshare is not None:  # the smooth terms after a diffuse bounce, for the next shares
             after = need[(state >> 2)[need] > 0]
             dshare.add(pixel[after], kpaths[after], contrib[after, LAYER_DOUBLE:].sum(axis=1))
+        if len(need) and vertices is not None:  # after a first diffuse vertex: pooled there (diffuse_filter)
+            pooled = need[vertex[need] >= 0]
+            vertices.accumulate(vertex[pooled], contrib[pooled])
+            need = need[vertex[need] < 0]
         if len(need):  # contrib is zero where no segment evaluated the medium
             for c, name in zip((LAYER_SINGLE, LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_BOUNCED), COMPONENTS):
                 add_rows(layers[name], pixel[need], contrib[need, c])
@@ -806,6 +848,11 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
         shadows = ShadowRays(np.empty((ks, 3)), np.empty((ks, 3)), np.empty(ks), np.empty((ks, 3)),
                              np.empty(ks, np.bool_))
         li = np.where(tl < t, li, -1)
+        new_vertex = None
+        if vertices is not None:
+            travelled = travelled + np.where(np.isfinite(tev), tev, 0.0)
+            new_vertex = _first_diffuse_vertices(vertices, bs, pos, dirs, beta, tev, surf, ng, li, evm, state, depth,
+                                                 kpaths, pixel, travelled, pbl)
         # the hit distance is to what the ray meets: the emitter's where one is in front (a sphere light's side
         # is judged at that point)
         _interact(bs.surfaces, bs.lights, Rays(pos, dirs, beta, medium, depth, rng, state), Hits(tev, surf, ng, ns, li),
@@ -824,9 +871,34 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
         parent_dirs, parent_surf, parent_medium = dirs, surf, medium
         slots, pos, dirs, beta, medium, state, depth, pixel, evm, path, kpaths, n_start, rng = _next_rays(
             children, ng, depth, pixel, evm, path, kpaths, rng, 1e-5, pbl.surface_roulette)
+        if vertices is not None:  # a child keeps its parent's first diffuse vertex, or the one its parent met
+            parent = slots >> 1
+            vertex = np.where(vertex[parent] >= 0, vertex[parent], new_vertex[parent])
+            travelled = travelled[parent]
         if entry is not None:
             entered = _entered(bs.surfaces, slots, slots >> 1, parent_surf, parent_dirs, ng, parent_medium, medium)
     return path_surface
+
+
+def _first_diffuse_vertices(vertices, bs, pos, dirs, beta, tev, surf, ng, li, evm, state, depth, kpaths, pixel,
+                            travelled, pbl) -> np.ndarray:
+    """The rays (of paths that evaluate the medium) meeting their first diffuse surface, where _interact_rays bounces
+    them, into vertices (DiffuseVertices) with weight beta x albedo x their pixel's path count: each ray's new vertex
+    id (-1: none). Every such hit is a vertex, its bounce drawn below the surface or not (then it finds nothing)."""
+    new_vertex = np.full(len(pos), -1, np.int64)
+    if pbl.diffuse_bounces <= 0:
+        return new_vertex
+    s = np.maximum(surf, 0)
+    hit = ((li < 0) & (surf >= 0) & np.isfinite(tev) & evm & ((state >> 2) == 0) & (depth < pbl.max_split_depth)
+           & (bs.surfaces[s, SURF_TYPE] == DIFFUSE))
+    iv = np.flatnonzero(hit)
+    if len(iv) == 0:
+        return new_vertex
+    d = dirs[iv]
+    facing = -np.sign(np.einsum("ij,ij->i", d, ng[iv]))[:, None] * ng[iv]  # the side the path came from
+    weight = beta[iv] * bs.surfaces[s[iv], SURF_ALBEDO:SURF_ALBEDO + 3] * kpaths[iv, None]
+    new_vertex[iv] = vertices.add(pos[iv] + tev[iv, None] * d, facing, surf[iv], travelled[iv], weight, pixel[iv])
+    return new_vertex
 
 
 def _entered(surfaces, slots, parent, surf, dirs, ng, medium, child_medium) -> np.ndarray:
