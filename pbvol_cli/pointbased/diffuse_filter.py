@@ -8,9 +8,13 @@ al. 2014, "Path Space Filtering"): at a path's first diffuse vertex v (weight w_
 the surface's albedo and the pixel's path count), everything the medium gives after it, c_v, is read as
 r_v = c_v / w_v, an unbiased estimate of the medium's light leaving v per unit of w. The vertices of a pass are
 binned by surface, side and position (cubes of `cell` pixel footprints at the vertex, on a grid shifted at random
-each pass, its size a power of two), and each vertex takes w_v times its bin's mean of r. Every vertex counts in
-its bin's mean, those whose paths found nothing too (r = 0), so the image converges to the glow blurred over about
-a cell; the lights seen directly from the surface (the shadow rays) are not pooled: shadows stay sharp.
+each pass, its size a power of two), and each vertex takes w_v times its bin's mean of r weighted by w: w_v x (sum
+of c) / (sum of w) over the bin. The bin's light is then dealt out in proportion to the weights, its total kept
+exactly: a weak branch that survived a roulette with its light boosted (r_v large, w_v small) adds no more than it
+did alone. An unweighted mean dealt such an r_v to neighbours of full weight (the wax candle's first pass read
+relMSE 0.17 with seed 1). Every vertex counts in its bin, those whose paths found nothing too (c = 0), so the
+image converges to the glow averaged over about a cell; the lights seen directly from the surface (the shadow
+rays) are not pooled: shadows stay sharp.
 """
 
 from __future__ import annotations
@@ -57,7 +61,7 @@ class DiffuseVertices:
             self.found.append((np.asarray(ids, np.int64), np.asarray(light, float)))
 
     def flush(self, layers) -> int:
-        """Adds each vertex's w_v x its bin's mean of r into layers (FILTER_LAYERS arrays (npix, 3), or None) at its
+        """Adds each vertex's w_v x its bin's (sum of c) / (sum of w) into layers (FILTER_LAYERS arrays (npix, 3), or None) at its
         pixel; empties the store. Returns the number of bins."""
         if self.count == 0:
             return 0
@@ -80,16 +84,13 @@ class DiffuseVertices:
         nb = int(group.max()) + 1
         npix = len(layers[0]) if layers[0] is not None else max(len(t) for t in layers if t is not None)
         for c in range(3):
-            live = weight[:, c] > 0.0
-            count = np.bincount(group[live], minlength=nb)
-            w = np.where(live, weight[:, c], 1.0)
+            w_bin = np.bincount(group, weights=weight[:, c], minlength=nb)
             for layer, target in enumerate(layers):
                 if target is None:
                     continue
-                total = np.bincount(group[live], weights=light[live, layer, c] / w[live], minlength=nb)
-                mean = total / np.maximum(count, 1)
-                value = np.where(live, weight[:, c] * mean[group], 0.0)
-                target[:, c] += np.bincount(pixel, weights=value, minlength=npix)
+                found = np.bincount(group, weights=light[:, layer, c], minlength=nb)
+                ratio = np.divide(found, w_bin, out=np.zeros(nb), where=w_bin > 0.0)
+                target[:, c] += np.bincount(pixel, weights=weight[:, c] * ratio[group], minlength=npix)
         return nb
 
 

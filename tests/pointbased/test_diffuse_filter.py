@@ -25,9 +25,9 @@ def _flush(store, npix):
     return layers, bins
 
 
-def test_vertices_of_one_bin_share_the_mean_of_their_light_per_unit_weight_vertices_that_found_nothing_included():
-    """Four vertices close together (one bin) of weights 1, 2, 1, 0.5 find light 3, 0, 1, 0 (r = 3, 0, 1, 0):
-    each takes its weight x the bin's mean r (1), the two that found nothing too."""
+def test_vertices_of_one_bin_share_its_light_in_proportion_to_their_weights_those_that_found_nothing_too():
+    """Four vertices close together (one bin) of weights 1, 2, 1, 0.5 find light 3, 0, 1, 0: each takes its weight x
+    the bin's light over its weight (4 / 4.5), the two that found nothing too; the bin's total, 4, is kept."""
     store = _store(cell=4.0, angle=0.01)
     pos = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.0, 0.0, 0.01], [0.01, 0.0, 0.01]]) + 0.5
     w = np.array([1.0, 2.0, 1.0, 0.5])
@@ -39,7 +39,7 @@ def test_vertices_of_one_bin_share_the_mean_of_their_light_per_unit_weight_verti
     layers, bins = _flush(store, 4)
     assert bins == 1
     for layer in layers:
-        assert np.allclose(layer[:, 0], w * 1.0)
+        assert np.allclose(layer[:, 0], w * 4.0 / 4.5) and np.isclose(layer[:, 0].sum(), 4.0)
     assert store.count == 0  # emptied for the next pass
 
 
