@@ -61,8 +61,8 @@ class DiffuseVertices:
             self.found.append((np.asarray(ids, np.int64), np.asarray(light, float)))
 
     def flush(self, layers) -> int:
-        """Adds each vertex's w_v x its bin's (sum of c) / (sum of w) into layers (FILTER_LAYERS arrays (npix, 3), or None) at its
-        pixel; empties the store. Returns the number of bins."""
+        """Adds each vertex's w_v x its bin's (sum of c) / (sum of w) into layers (FILTER_LAYERS arrays (npix, 3),
+        or None) at its pixel; empties the store. Returns the number of bins."""
         if self.count == 0:
             return 0
         pos, side, surface, reach, weight, pixel = (np.concatenate(a) for a in (

@@ -22,13 +22,16 @@ from pbvol_cli.jit import as_runtime
 from pbvol_cli.physics.phase import INV_4PI, phase_eval
 from pbvol_cli.physics.sampling import rand
 from pbvol_cli.pointbased.octree import (LEAF_WALK_STACK, LOBE_ALIGN, LOBE_CENTRE, LOBE_DIR, LOBE_EXT2, LOBE_HI,
-                                         LOBE_LO, LOBE_POWER, next_leaf)
+                                         LOBE_LO, LOBE_POWER, LOBE_SPREAD2, next_leaf)
 from pbvol_cli.pointbased.sources import sample_terms
 
 CUT_CAP = 4096  # nodes a cut may hold at once (a node that would overflow it is used as it is)
 MULTIPLE_CUT_SHARE = 4  # multiple scattering (smooth) uses the cut after cut_size / 4 refinements
 LEAF_SCRATCH = 64  # a leaf's sample importances kept while its sample is drawn (leaves hold LEAF_SIZE, or a few more)
-BOX_NEAR = 1.0 / 16.0  # a node whose box holds P is judged at most at a distance of a quarter of its extent
+LINE_POINTS = 4  # points along a segment long next to its distance from P where its importance is judged
+# a node whose box holds P is judged no nearer than a quarter of its extent or half the rms distance of its power
+# from P, whichever is nearer (_node_importance)
+BOX_NEAR, SPREAD_NEAR = 1.0 / 16.0, 0.25
 
 
 @njit(inline="always", cache=True)
@@ -80,46 +83,43 @@ def _heap_pop(heap, n, key):
 
 
 @njit(inline="always", cache=True)
-def _importance(x, y, z, dx, dy, dz, align, power, ext2, q, kind, g, st_min):
-    """How much a source (a node: centroid, mean direction with alignment, power summed over RGB, squared extent)
-    may give double scattering at q (Query): power x lobe toward P x phase toward the camera x e^-sigma r / r^2,
-    r^2 at least the extent. Positive for every phase function here (none vanishes)."""
-    rx, ry, rz = q.x - x, q.y - y, q.z - z
+def _node_importance(lobes, ch, q, kind, g, st_min):
+    """How much node ch (its lobes row) may give double scattering at q (Query): power x lobe toward P (the node's
+    mean direction, as aligned as its samples) x phase toward the camera x e^(-sigma r) / d^2, r from its centroid,
+    d the distance to the box around its samples. Where that box holds P, d^2 is at least the smaller of BOX_NEAR x
+    its squared half-diagonal and SPREAD_NEAR x (r^2 + its spread^2), the mean squared distance from P of a cloud
+    of its spread about its centroid. In a dense medium long segments put nearly every box around P; the spread
+    tells a node whose power lies near P from one that only reaches it. By the extent alone the wax candle's
+    multiple term drew a child holding 0.72 of a node's light at 0.19, and bins read 10-20x high; by the spread
+    alone a node of short segments far off with one long one passing by P reads too dim (docs/pbl.md, section
+    12). Positive for every phase function here."""
+    pw = lobes[ch, LOBE_POWER]
+    rx, ry, rz = q.x - lobes[ch, LOBE_CENTRE], q.y - lobes[ch, LOBE_CENTRE + 1], q.z - lobes[ch, LOBE_CENTRE + 2]
     r2 = rx * rx + ry * ry + rz * rz
     r = math.sqrt(r2)
     if r > 0.0:
         mx, my, mz = rx / r, ry / r, rz / r
     else:
         mx, my, mz = q.wx, q.wy, q.wz
-    lobe = align * phase_eval(kind, g, dx * mx + dy * my + dz * mz) + (1.0 - align) * INV_4PI
-    return power * lobe * phase_eval(kind, g, mx * q.wx + my * q.wy + mz * q.wz) * math.exp(-st_min * r) / max(r2, ext2)
-
-
-@njit(inline="always", cache=True)
-def _box_nearness(lobes, ch, q):
-    """The factor by which node ch's _importance (judged at its centroid, r at least its extent) is raised where P
-    lies nearer its box (the box around its samples' own): r^2 over the squared distance to the box, that at least
-    BOX_NEAR x its extent^2. A node whose centroid is far from P may hold one long segment passing by P: judged
-    at its centroid, such a node of the milk's lit set was drawn at 0.006 of its siblings' importance and its
-    segment, 0.2 from P, at 1 in 1180 (a bin 20x too bright; docs/pbl.md)."""
-    ext2 = lobes[ch, LOBE_EXT2]
-    dx = q.x - lobes[ch, LOBE_CENTRE]
-    dy = q.y - lobes[ch, LOBE_CENTRE + 1]
-    dz = q.z - lobes[ch, LOBE_CENTRE + 2]
-    r2 = max(dx * dx + dy * dy + dz * dz, ext2)
+    align = lobes[ch, LOBE_ALIGN]
+    lobe = (align * phase_eval(kind, g, lobes[ch, LOBE_DIR] * mx + lobes[ch, LOBE_DIR + 1] * my
+                               + lobes[ch, LOBE_DIR + 2] * mz) + (1.0 - align) * INV_4PI)
     ex = max(lobes[ch, LOBE_LO] - q.x, 0.0, q.x - lobes[ch, LOBE_HI])
     ey = max(lobes[ch, LOBE_LO + 1] - q.y, 0.0, q.y - lobes[ch, LOBE_HI + 1])
     ez = max(lobes[ch, LOBE_LO + 2] - q.z, 0.0, q.z - lobes[ch, LOBE_HI + 2])
-    return r2 / max(ex * ex + ey * ey + ez * ez, ext2 * BOX_NEAR, 1e-30)
+    floor = min(BOX_NEAR * lobes[ch, LOBE_EXT2], SPREAD_NEAR * (r2 + lobes[ch, LOBE_SPREAD2]))
+    d2 = max(ex * ex + ey * ey + ez * ez, floor, 1e-30)
+    return pw * lobe * phase_eval(kind, g, mx * q.wx + my * q.wy + mz * q.wz) * math.exp(-st_min * r) / d2
 
 
 @njit(inline="always", cache=True)
 def _sample_importance(i, vs, q, kind, g, st_min, ext_min2):
-    """_importance of volume sample i as a line source: its power spread along its segment, 1/r^2 averaged along
-    it (r at least its beam's radius and ext_min), the lobe (its own direction), the phase toward the camera and
-    the transmittance taken at its point nearest P. Judged at its centre with an extent of half its length (as
-    before) a long segment read about ten times low where P lies near one end: on the milk a bounced segment 6
-    long (8 mean free paths), drawn at 1 in 1573 for 3 % of the estimate, made a bin read 50x (docs/pbl.md)."""
+    """_node_importance of volume sample i as a line source: its power spread along its segment, 1/r^2 averaged
+    along it (r at least its beam's radius and ext_min), the lobe (its own direction), the phase toward the camera
+    and the transmittance taken at its point nearest P (or averaged along it, below). Judged at its centre with an
+    extent of half its length (as before) a long segment read about ten times low where P lies near one end: on the
+    milk a bounced segment 6 long (8 mean free paths), drawn at 1 in 1573 for 3 % of the estimate, made a bin read
+    50x (docs/pbl.md)."""
     pw = vs.scat[i, 0] + vs.scat[i, 1] + vs.scat[i, 2]
     ln = vs.len[i]
     dx, dy, dz = vs.dir[i, 0], vs.dir[i, 1], vs.dir[i, 2]
@@ -135,25 +135,46 @@ def _sample_importance(i, vs, q, kind, g, st_min, ext_min2):
     tc = min(max(tp, 0.0), ln)
     cx, cy, cz = px - tc * dx, py - tc * dy, pz - tc * dz  # from the segment's nearest point to P
     rc = math.sqrt(cx * cx + cy * cy + cz * cz)
-    if rc > 0.0:
-        mx, my, mz = cx / rc, cy / rc, cz / rc
-    else:
-        mx, my, mz = q.wx, q.wy, q.wz
-    lobe = phase_eval(kind, g, dx * mx + dy * my + dz * mz)
-    return pw * lobe * phase_eval(kind, g, mx * q.wx + my * q.wy + mz * q.wz) * math.exp(-st_min * rc) * line
+    if ln <= rc:  # P sees the segment under a narrow angle: lobe and phase at its nearest point
+        if rc > 0.0:
+            mx, my, mz = cx / rc, cy / rc, cz / rc
+        else:
+            mx, my, mz = q.wx, q.wy, q.wz
+        lobe = phase_eval(kind, g, dx * mx + dy * my + dz * mz)
+        return pw * lobe * phase_eval(kind, g, mx * q.wx + my * q.wy + mz * q.wz) * math.exp(-st_min * rc) * line
+    # a segment long next to its distance: lobe x phase x transmittance averaged over LINE_POINTS points along it,
+    # weighted by their 1/r^2. At its nearest point alone a segment passing by P sees P across its beam, far off
+    # its forward lobe, though its upstream part shines at P: the candle's bins drew such a segment at 0.15 of a
+    # leaf where it held 0.97 of the leaf's multiple term (docs/pbl.md)
+    acc = 0.0
+    wsum = 0.0
+    for k in range(LINE_POINTS):
+        t = ln * (k + 0.5) / LINE_POINTS
+        ux, uy, uz = px - t * dx, py - t * dy, pz - t * dz
+        rk2 = ux * ux + uy * uy + uz * uz
+        rk = math.sqrt(rk2)
+        if rk > 0.0:
+            mx, my, mz = ux / rk, uy / rk, uz / rk
+        else:
+            mx, my, mz = q.wx, q.wy, q.wz
+        w = 1.0 / max(rk2, r2)
+        lobe = phase_eval(kind, g, dx * mx + dy * my + dz * mz)
+        acc += w * lobe * phase_eval(kind, g, mx * q.wx + my * q.wy + mz * q.wz) * math.exp(-st_min * rk)
+        wsum += w
+    return pw * acc / wsum * line
 
 
 @njit(cache=True)
 def _representative(nd, vs, q, kind, g, st_min, ext_min2, u, imp, pws):
-    """A sample of node nd drawn by descending with probabilities half proportional to each child's _importance
-    and half to its power, then likewise among the leaf's samples (a light tree, after Conty Estevez and Kulla
-    2018, with a defensive mixture): sources whose lobes point at P and whose P-side phase points at the camera
-    are found far more often than by power alone (g = 0.9: lobes 200x their mean), and at each level no child's
-    probability falls below half its power share (importance alone, misjudged near P, made fireflies; over the
-    levels that bounds a sample's weight by 2^levels times its power-proportional one. A one-sample mixture of
-    the two whole descents, bounding it by twice, was measured and not kept: docs/pbl.md). imp, pws: scratch of
-    LEAF_SCRATCH and 8 (a leaf's importances kept there between its two loops, where it fits). Returns (sample,
-    1 / its probability)."""
+    """A sample of node nd drawn by descending with probabilities half proportional to each child's
+    _node_importance and half to its power, then likewise among the leaf's samples (a light tree, after Conty
+    Estevez and Kulla 2018, with a defensive mixture): sources whose lobes point at P and whose P-side phase
+    points at the camera are found far more often than by power alone (g = 0.9: lobes 200x their mean), and at
+    each level no child's probability falls below half its power share (importance alone, misjudged near P, made
+    fireflies; over the levels that bounds a sample's weight by 2^levels times its power-proportional one. A
+    one-sample mixture of the two whole descents, bounding it by twice, was measured and not kept: docs/pbl.md).
+    imp, pws: scratch of LEAF_SCRATCH and 8 (a leaf's importances kept there between its two loops, where it
+    fits). Returns (sample, 1 / its probability)."""
     tree, v_scat, lobes = vs.tree, vs.scat, vs.lobes
     order, first_child, n_children, start, end = tree[0], tree[6], tree[7], tree[8], tree[9]
     prob = 1.0
@@ -169,10 +190,7 @@ def _representative(nd, vs, q, kind, g, st_min, ext_min2, u, imp, pws):
             imp[k] = 0.0
             if pw <= 0.0:
                 continue
-            imp[k] = _importance(lobes[ch, LOBE_CENTRE], lobes[ch, LOBE_CENTRE + 1], lobes[ch, LOBE_CENTRE + 2],
-                                 lobes[ch, LOBE_DIR], lobes[ch, LOBE_DIR + 1], lobes[ch, LOBE_DIR + 2],
-                                 lobes[ch, LOBE_ALIGN], pw, lobes[ch, LOBE_EXT2], q, kind, g, st_min)
-            imp[k] *= _box_nearness(lobes, ch, q)
+            imp[k] = _node_importance(lobes, ch, q, kind, g, st_min)
             total += imp[k]
         if not ptotal > 0.0:
             return -1, 0.0

@@ -18,8 +18,10 @@ LEAF_WALK_STACK = 128  # depth-first stack of next_leaf's walks (8 children a le
 # a node's row of node_lobes: its power-weighted centroid, mean direction (unit), alignment (|dirsum| / power, at most
 # 1), power (R + G + B), and the box around its samples (their own extent: the segment and its beam's radius, not
 # single scattering's wider kernel boxes) as its squared half-diagonal and its corners; what a light-cut descent reads
-# of each child, in one record (the arrays of Octree, read child by child, were one cache miss each)
-LOBE_CENTRE, LOBE_DIR, LOBE_ALIGN, LOBE_POWER, LOBE_EXT2, LOBE_LO, LOBE_HI, LOBE_COLS = 0, 3, 6, 7, 8, 9, 12, 15
+# of each child, in one record (the arrays of Octree, read child by child, were one cache miss each); and the spread
+# of its power about the centroid: the power-weighted mean squared distance of the points along its segments
+LOBE_CENTRE, LOBE_DIR, LOBE_ALIGN, LOBE_POWER, LOBE_EXT2, LOBE_LO, LOBE_HI, LOBE_SPREAD2, LOBE_COLS = \
+    0, 3, 6, 7, 8, 9, 12, 15, 16
 
 
 @dataclass
@@ -215,13 +217,21 @@ def _node_extents(tree, box_lo, box_hi):
 
 
 @njit(cache=True)
-def _node_lobes(tree, ext2, blo, bhi):
-    centre, dirsum, power = tree[3], tree[4], tree[5]
+def _node_lobes(tree, ext2, blo, bhi, points, length, weight):
+    order, centre, dirsum, power, start, end = tree[0], tree[3], tree[4], tree[5], tree[8], tree[9]
     n = centre.shape[0]
     out = np.zeros((n, LOBE_COLS))
     for nd in range(n):
         pw = power[nd, 0] + power[nd, 1] + power[nd, 2]
         out[nd, LOBE_POWER] = pw
+        if pw > 0.0 and length.shape[0] > 0:  # about the centroid, summed directly (no cancellation)
+            acc = 0.0
+            for k in range(start[nd], end[nd]):
+                i = order[k]
+                dx, dy, dz = points[i, 0] - centre[nd, 0], points[i, 1] - centre[nd, 1], points[i, 2] - centre[nd, 2]
+                w = weight[i, 0] + weight[i, 1] + weight[i, 2]
+                acc += w * (dx * dx + dy * dy + dz * dz + length[i] * length[i] / 12.0)
+            out[nd, LOBE_SPREAD2] = acc / pw
         for c in range(3):
             out[nd, LOBE_CENTRE + c] = centre[nd, c]
         out[nd, LOBE_EXT2] = ext2[nd]
@@ -238,9 +248,11 @@ def _node_lobes(tree, ext2, blo, bhi):
     return out
 
 
-def node_lobes(tree, box_lo=None, box_hi=None) -> np.ndarray:
+def node_lobes(tree, box_lo=None, box_hi=None, segments=None) -> np.ndarray:
     """(nodes, LOBE_COLS): each node's lobe record (see LOBE_COLS) from tree (Octree.arrays()). The box is that
     around the samples' own boxes [box_lo, box_hi] (indexed like the tree's samples) where given, else the tree's.
+    segments: (centres (m, 3), lengths (m,), power (m, 3)) of the tree's samples, the power the tree was built
+    with, for the spread (LOBE_SPREAD2, left 0 without them; a point sample has length 0).
     A node without power gets a zero direction and alignment."""
     if box_lo is None:
         lo, hi = tree[1], tree[2]
@@ -248,5 +260,9 @@ def node_lobes(tree, box_lo=None, box_hi=None) -> np.ndarray:
     else:
         ext2, lo, hi = _node_extents(tree, np.ascontiguousarray(box_lo, np.float64),
                                      np.ascontiguousarray(box_hi, np.float64))
+    if segments is None:
+        points, length, weight = np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3))
+    else:
+        points, length, weight = (np.ascontiguousarray(a, np.float64) for a in segments)
     return _node_lobes(tree, np.ascontiguousarray(ext2, np.float64), np.ascontiguousarray(lo, np.float64),
-                       np.ascontiguousarray(hi, np.float64))
+                       np.ascontiguousarray(hi, np.float64), points, length, weight)

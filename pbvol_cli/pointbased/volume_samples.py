@@ -258,7 +258,8 @@ class SampleSet:
         own_lo = np.minimum(start, end) - beam_radius[:, None]
         own_hi = np.maximum(start, end) + beam_radius[:, None]
         self.kernel = VolumeSamples(tree.arrays(), start, dirs, length, power, area, centre, self.scat, beam_radius,
-                                    ends, plane, tuple(tables), r_near, node_lobes(tree.arrays(), own_lo, own_hi),
+                                    ends, plane, tuple(tables), r_near,
+                                    node_lobes(tree.arrays(), own_lo, own_hi, (centre, length, self.scat)),
                                     float(np.min(hi - lo)) if len(idx) else 0.0, *legs)
 
 
