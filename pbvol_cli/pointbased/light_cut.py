@@ -83,6 +83,17 @@ def _heap_pop(heap, n, key):
 
 
 @njit(inline="always", cache=True)
+def _lobe_and_phase(kind, g, dx, dy, dz, vx, vy, vz, r, q):
+    """phase(d . m) x phase(m . w) for a source of beam direction d seeing P along v = P - source, |v| = r (m = v /
+    r; the camera's direction w where r = 0): the source's lobe toward P times P's phase toward the camera."""
+    if r > 0.0:
+        mx, my, mz = vx / r, vy / r, vz / r
+    else:
+        mx, my, mz = q.wx, q.wy, q.wz
+    return phase_eval(kind, g, dx * mx + dy * my + dz * mz) * phase_eval(kind, g, mx * q.wx + my * q.wy + mz * q.wz)
+
+
+@njit(inline="always", cache=True)
 def _node_importance(lobes, ch, q, kind, g, st_min):
     """How much node ch (its lobes row) may give double scattering at q (Query): power x lobe toward P (the node's
     mean direction, as aligned as its samples) x phase toward the camera x e^(-sigma r) / d^2, r from its centroid,
@@ -136,12 +147,7 @@ def _sample_importance(i, vs, q, kind, g, st_min, ext_min2):
     cx, cy, cz = px - tc * dx, py - tc * dy, pz - tc * dz  # from the segment's nearest point to P
     rc = math.sqrt(cx * cx + cy * cy + cz * cz)
     if ln <= rc:  # P sees the segment under a narrow angle: lobe and phase at its nearest point
-        if rc > 0.0:
-            mx, my, mz = cx / rc, cy / rc, cz / rc
-        else:
-            mx, my, mz = q.wx, q.wy, q.wz
-        lobe = phase_eval(kind, g, dx * mx + dy * my + dz * mz)
-        return pw * lobe * phase_eval(kind, g, mx * q.wx + my * q.wy + mz * q.wz) * math.exp(-st_min * rc) * line
+        return pw * _lobe_and_phase(kind, g, dx, dy, dz, cx, cy, cz, rc, q) * math.exp(-st_min * rc) * line
     # a segment long next to its distance: lobe x phase x transmittance averaged over LINE_POINTS points along it,
     # weighted by their 1/r^2. At its nearest point alone a segment passing by P sees P across its beam, far off
     # its forward lobe, though its upstream part shines at P: the candle's bins drew such a segment at 0.15 of a
@@ -153,13 +159,8 @@ def _sample_importance(i, vs, q, kind, g, st_min, ext_min2):
         ux, uy, uz = px - t * dx, py - t * dy, pz - t * dz
         rk2 = ux * ux + uy * uy + uz * uz
         rk = math.sqrt(rk2)
-        if rk > 0.0:
-            mx, my, mz = ux / rk, uy / rk, uz / rk
-        else:
-            mx, my, mz = q.wx, q.wy, q.wz
         w = 1.0 / max(rk2, r2)
-        lobe = phase_eval(kind, g, dx * mx + dy * my + dz * mz)
-        acc += w * lobe * phase_eval(kind, g, mx * q.wx + my * q.wy + mz * q.wz) * math.exp(-st_min * rk)
+        acc += w * _lobe_and_phase(kind, g, dx, dy, dz, ux, uy, uz, rk, q) * math.exp(-st_min * rk)
         wsum += w
     return pw * acc / wsum * line
 
