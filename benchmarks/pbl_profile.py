@@ -57,6 +57,8 @@ def main():
     timed(passes, "place_light_samples", "light side: a new light-sample set")
     timed(passes, "SampleSet", "light side: octrees over the volume samples")
     timed(passes, "_bounced_set", "light side: the bounced samples")
+    timed(camera_pass, "caustic_map", "caustics: photons traced and gridded")
+    timed(camera_pass, "_gather_caustics", "caustics: gathered at the camera paths' diffuse hits")
     for name in ("closest_surface_hits", "light_hits", "visible", "_interact", "segment_planes"):
         timed(camera_pass, name, "camera paths: hits, shadow rays, interfaces")
     opts = dict(method="pbl", threads=args.threads, cache_dir=args.cache, quiet=True)

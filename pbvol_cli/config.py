@@ -470,6 +470,14 @@ class PblSettings(Strict):
                                      "medium (others keep blue noise): steadier generations, the wax sphere's "
                                      "bounced layer a quarter less noisy per pass, for a sixth to three tenths "
                                      "more time (docs/pbl.md, section 8)")
+    caustic_photons: Num = Field(4.0, ge=0, le=1024, description="photons a pass traces per pixel from the sphere "
+                                 "and quad lights through the smooth surfaces to the diffuse ones, where camera paths "
+                                 "gather them (a small light's caustic beside a glass, smooth instead of fireflies; "
+                                 "biased by the kernel's blur, which fades with the passes; docs/pbl.md); 0: the "
+                                 "camera paths find caustics by chance, as volpath's")
+    caustic_radius: Num = Field(4.0, gt=0, le=64, description="the caustic kernel's radius in pass 0, pixel "
+                                "footprints at the distance a camera path travelled to the surface; pass p's is "
+                                "(p + 1)^(-1/6) times that")
     components: tuple[Literal["single", "double", "multiple", "bounced"], ...] = Field(
         ("single", "double", "multiple", "bounced"), description="the medium's terms rendered (each is a layer of the "
         "EXR; the command line's --components overrides)")

@@ -31,6 +31,7 @@ from pbvol_cli.geometry.scene_build import (CAM_HEIGHT, CAM_UP, DIELECTRIC, DIFF
 from pbvol_cli.physics.fresnel import reflect, refract
 from pbvol_cli.physics.lights import ENVIRONMENT, LIGHT_RGB, LIGHT_TYPE, emitted_toward, light_sample
 from pbvol_cli.physics.sampling import cosine_hemisphere, mix64, rand
+from pbvol_cli.pointbased.caustics import caustic_map, irradiance
 from pbvol_cli.pointbased.diffuse_filter import DiffuseVertices
 from pbvol_cli.pointbased.gather import (LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_SINGLE, DeferredSingle, eval_segments,
                                          gather_settings, segment_planes)
@@ -52,7 +53,9 @@ Children = namedtuple("Children", ["pos", "dir", "beta", "medium", "ok", "state"
 ShadowRays = namedtuple("ShadowRays", ["pos", "dir", "dist", "contrib", "ok"])
 # shadows_cross: the surfaces the shadow rays pass (0: none, as pbl's; 1: null boundaries, 2: smooth dielectrics too,
 # the ray marcher's), so a light seen past one of them after a diffuse bounce is already counted
-PathLimits = namedtuple("PathLimits", ["eps", "max_split_depth", "max_diffuse", "shadows_cross"])
+# caustics: whether a caustic map (caustics.py) carries the emitters seen after a diffuse bounce through smooth
+# interfaces, which the camera paths then no longer count
+PathLimits = namedtuple("PathLimits", ["eps", "max_split_depth", "max_diffuse", "shadows_cross", "caustics"])
 
 
 # Numba pitfall: arrays unpacked from a tuple inside a parallel function lose their writes in prange (numba
@@ -77,7 +80,8 @@ def _interact_rays(lo, hi, surfaces, lights, rays, hits, limits, emit, children,
     + light) and, below limits.max_diffuse bounces, one cosine-sampled child (slot 2i) for indirect light.
     rays.state[i] = 4 x (diffuse bounces) + 2 x (a specular interface crossed since the last diffuse bounce):
     lights and the environment seen directly after a diffuse bounce are already counted by the shadow rays, which
-    stop at every surface; seen through a specular chain (a caustic through the glass) they are not, and count."""
+    stop at every surface; seen through a specular chain (a caustic through the glass) they are not, and count,
+    unless limits.caustics: an emitter after a diffuse bounce is then the caustic map's (gathered by the caller)."""
     pos, dirs, beta, medium, depth, rng, state = (rays.pos, rays.dir, rays.beta, rays.medium, rays.depth, rays.rng,
                                                   rays.state)
     t, surf, ng, ns, li = hits.t, hits.surface, hits.ng, hits.ns, hits.light
@@ -94,7 +98,7 @@ def _interact_rays(lo, hi, surfaces, lights, rays, hits, limits, emit, children,
         dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
         n_diffuse = state[i] >> 2
         counts = n_diffuse == 0 or (state[i] & 2) != 0  # emission not already counted by a shadow ray
-        if li[i] >= 0 and not counts:
+        if li[i] >= 0 and (not counts or (n_diffuse > 0 and limits.caustics)):
             continue
         if li[i] >= 0:  # an area light in front of the surface
             e = emitted_toward(lights, li[i], dx, dy, dz, pos[i, 0], pos[i, 1], pos[i, 2], t[i])
@@ -454,8 +458,13 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     passes = 0
     first_k = None  # the first two passes' counts (auto: from a pilot, or AUTO_FIRST_PATHS)
     pilot_den = None  # the first pass's measure of the rays after a diffuse bounce (the pilot's image)
+    # caustics from photons (caustics.py), in media the camera paths attenuate themselves (no entry or segment term)
+    with_caustics = pbl.caustic_photons > 0 and entry is None and segment is None
+    caustics_of = partial(caustic_map, bs, caster, round(pbl.caustic_photons * npix), pbl.caustic_radius,
+                          pixel_angle(bs), seed, max_depth=pbl.max_split_depth) if with_caustics else (lambda p: None)
+    caustics = caustics_of(first_pass)
     if pbl.surface_paths == 0 and pbl.pilot_paths > 0 and entry is None and segment is None:
-        pilot = _pilot(bs, caster, pool, threads, seed, npix, W, pbl, settings, settings_b)
+        pilot = _pilot(bs, caster, pool, threads, seed, npix, W, pbl, settings, settings_b, caustics)
         first_k, stats.pilot_surface, pilot_den = pilot.counts, pilot.surface_variance, pilot.image ** 2 + 1e-2
     for p in range(first_pass, first_pass + spp):
         if time_limit is not None and passes > 0 and time.perf_counter() - t0 > time_limit:
@@ -475,6 +484,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         shares.append(share)
         diffuse = DiffuseShare(share, image_so_far ** 2 + 1e-2 if image_so_far is not None else pilot_den)
         media_data = media_for_pass(p)
+        caustics = caustics if p == first_pass else caustics_of(p)
         entry_p = entry.for_pass(p) if entry is not None else None
         segment_p = segment.for_pass(p, caster) if segment is not None else None
         # which of the pixel's k paths evaluates the medium in this pass (k = 1: every path)
@@ -511,7 +521,8 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
             part = slice(c0, c1)
             path_surface = _trace_batch(bs, caster, pool, threads, media_data, seed, done + c0, pixels[part],
                                         samples[part], evm[part], k[pixels[part]], npix, settings, settings_b, pbl,
-                                        acc, single, entry_p, segment_p, term_shares, diffuse, bins, vertices, single_v)
+                                        acc, single, entry_p, segment_p, term_shares, diffuse, bins, vertices, single_v,
+                                        caustics)
             if single.full() or part.stop == per_pass:
                 single.flush(pool, threads, acc["single"], npix)
             if vertices is not None and (single_v.full() or part.stop == per_pass):
@@ -531,7 +542,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         stats.add(k, acc["surface"], surface_sq, sum(acc[c] for c in names if c != "surface") / k[:, None])
         stats.add_diffuse(diffuse, npix)
         # this pass's sample sets and buffers freed before the next pass builds its own: not both at once
-        media_data = acc = surface_sq = pixels = samples = ranks = evm = first = path_surface = None
+        media_data = acc = surface_sq = pixels = samples = ranks = evm = first = path_surface = caustics = None
     caster.close()
     if pool is not None:
         pool.shutdown()
@@ -564,10 +575,13 @@ def _flush_single_at_vertices(single_v, vertices, pool, threads):
     vertices.accumulate(np.arange(vertices.count), light)
 
 
-def _pilot(bs, caster, pool, threads, seed: int, npix: int, width: int, pbl, settings, settings_b) -> Pilot:
+def _pilot(bs, caster, pool, threads, seed: int, npix: int, width: int, pbl, settings, settings_b,
+           caustics=None) -> Pilot:
     """The first passes' path counts (pilot_surface_paths) from pbl.pilot_paths surface-only camera paths per pixel,
     traced before them with sample indices and random streams of their own (from PILOT_FIRST_SAMPLE): the counts
-    are independent of the paths they weigh, so the image stays unbiased; the pilot's light is not in the image."""
+    are independent of the paths they weigh, so the image stays unbiased; the pilot's light is not in the image.
+    caustics: the first pass's caustic map (or None), so that the pilot measures the surfaces as the passes see
+    them."""
     per = pbl.pilot_paths
     total, total_sq = np.zeros((npix, 3)), np.zeros((npix, 3))
     ranks = np.repeat(np.arange(per, dtype=np.int64)[None, :], npix, axis=0).ravel()
@@ -580,7 +594,7 @@ def _pilot(bs, caster, pool, threads, seed: int, npix: int, width: int, pbl, set
         n = len(pixels[part])
         light = _trace_batch(bs, caster, pool, threads, {}, seed, PILOT_FIRST_SAMPLE + c0, pixels[part],
                              PILOT_FIRST_SAMPLE + ranks[part], np.zeros(n, np.bool_), kpaths[pixels[part]], npix,
-                             settings, settings_b, pbl, layers, DeferredSingle())
+                             settings, settings_b, pbl, layers, DeferredSingle(), caustics=caustics)
         add_rows(total, pixels[part], light)  # (np.bincount's sums where a pixel's paths lie in one batch)
         add_rows(total_sq, pixels[part], light * light)
     mean = total / per
@@ -716,7 +730,7 @@ def _measure_shares(bins, pool, threads, state, idx):
 
 def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samples, evm, kpaths, npix, settings,
                  settings_b, pbl, layers, single, entry=None, segment=None, term_shares=None, dshare=None, bins=None,
-                 vertices=None, single_v=None):
+                 vertices=None, single_v=None, caustics=None):
     """Camera paths (sample samples[i] of pixel pixels[i]; `done` paths traced before them in this render), traced to
     the end, added into layers; the lights' single scattering into single (gather.DeferredSingle), which the caller
     flushes into layers["single"]; term_shares: the pass's radiance_cache.TermShares by (medium, "lit" or
@@ -727,7 +741,8 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
     after a diffuse bounce take shares it has not measured yet; the caller flushes the rest; None: each depth's
     bins evaluated at once); vertices: the pass's diffuse_filter.DiffuseVertices, which takes the medium's light
     found after a path's first diffuse bounce (its single scattering through single_v, a DeferredSingle keyed by
-    vertex; None: the light goes to the path's pixel). Path i
+    vertex; None: the light goes to the path's pixel); caustics: the pass's caustics.CausticMap, gathered at the
+    diffuse surfaces the paths meet (None: the camera paths find the caustics themselves). Path i
     evaluates
     the medium where evm[i], its medium terms weighted kpaths[i] (its pixel's path count in this pass), and the
     entry term (render_pbl) where it enters a medium. Returns each path's surface light (n, 3)."""
@@ -745,7 +760,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
     state = np.zeros(n, np.int64)  # see _interact_rays
     n_start = np.full((n, 3), np.nan)  # the normal of the surface each ray leaves (NaN: the camera)
     limits = PathLimits(bs.eps, pbl.max_split_depth, pbl.diffuse_bounces,
-                        0 if segment is None else 2 if segment.through_dielectrics else 1)
+                        0 if segment is None else 2 if segment.through_dielectrics else 1, caustics is not None)
     cache, cache_b = cache_settings(pbl), cache_settings(pbl, single=True)  # the bounced light is smooth throughout
     p_diffuse = dshare.p if dshare is not None else 1.0
     entered = np.zeros(n)  # eta beyond / eta before where a ray has just entered a medium (0: it has not)
@@ -849,8 +864,10 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                              np.empty(ks, np.bool_))
         li = np.where(tl < t, li, -1)
         new_vertex = None
+        travelled = travelled + np.where(np.isfinite(tev), tev, 0.0)
+        if caustics is not None:
+            _gather_caustics(caustics, bs, pos, dirs, beta, tev, surf, ng, li, depth, travelled, pbl, emit)
         if vertices is not None:
-            travelled = travelled + np.where(np.isfinite(tev), tev, 0.0)
             new_vertex = _first_diffuse_vertices(vertices, bs, pos, dirs, beta, tev, surf, ng, li, evm, state, depth,
                                                  kpaths, pixel, travelled, pbl)
         # the hit distance is to what the ray meets: the emitter's where one is in front (a sphere light's side
@@ -874,10 +891,25 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
         if vertices is not None:  # a child keeps its parent's first diffuse vertex, or the one its parent met
             parent = slots >> 1
             vertex = np.where(vertex[parent] >= 0, vertex[parent], new_vertex[parent])
-            travelled = travelled[parent]
+        travelled = travelled[slots >> 1]
         if entry is not None:
             entered = _entered(bs.surfaces, slots, slots >> 1, parent_surf, parent_dirs, ng, parent_medium, medium)
     return path_surface
+
+
+def _gather_caustics(cmap, bs, pos, dirs, beta, tev, surf, ng, li, depth, travelled, pbl, emit):
+    """The caustic light (cmap: caustics.CausticMap) that the rays meeting a diffuse surface reflect toward the
+    camera, beta x albedo / pi x the map's irradiance there, into emit: at the hits where _interact_rays shades a
+    diffuse surface (no emitter in front, below the split depth)."""
+    s = np.maximum(surf, 0)
+    hit = np.flatnonzero((li < 0) & (surf >= 0) & np.isfinite(tev) & (depth < pbl.max_split_depth)
+                         & (bs.surfaces[s, SURF_TYPE] == DIFFUSE))
+    if len(hit) == 0:
+        return
+    d = dirs[hit]
+    facing = -np.sign(np.einsum("ij,ij->i", d, ng[hit]))[:, None] * ng[hit]  # the side the ray came from
+    e = irradiance(cmap, pos[hit] + tev[hit, None] * d, facing, travelled[hit])
+    add_rows(emit, hit, beta[hit] * bs.surfaces[s[hit], SURF_ALBEDO:SURF_ALBEDO + 3] / math.pi * e)
 
 
 def _first_diffuse_vertices(vertices, bs, pos, dirs, beta, tev, surf, ng, li, evm, state, depth, kpaths, pixel,
