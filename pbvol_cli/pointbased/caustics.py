@@ -57,10 +57,11 @@ bounding box (most queries lie far from every photon: they stop there), max_radi
 
 
 def caustic_target(bs: BuiltScene):
-    """(centre (3,), radius) of a sphere bounding every smooth (non-diffuse) surface, or None where there is none:
-    the photons are aimed at it, since a caustic path's first surface is a smooth one."""
+    """(centre (3,), radius) of a sphere bounding every smooth (non-diffuse) surface, or None where there is none, or
+    no diffuse surface to receive a caustic: the photons are aimed at it, since a caustic path's first surface is
+    a smooth one."""
     smooth = np.flatnonzero(bs.surfaces[:, SURF_TYPE] != DIFFUSE)
-    if len(smooth) == 0:
+    if len(smooth) == 0 or len(smooth) == len(bs.surfaces):
         return None
     pts = np.zeros((0, 3))
     if len(bs.faces):

@@ -62,6 +62,13 @@ def test_photons_give_a_sphere_lights_irradiance_through_an_absorbing_ball(tmp_p
     assert np.all(irradiance(cmap, far, up[:2], np.full(2, 5.0)) == 0.0)
     # from below the floor (the other side) nothing is gathered
     assert np.all(irradiance(cmap, points, -up, np.full(64, 5.0)) == 0.0)
+    # with no diffuse surface to receive them, no photons are traced at all
+    scene = _absorbing_ball_scene()
+    scene["shapes"] = scene["shapes"][1:]
+    bs = build(tmp_path, scene)
+    caster = TriangleCaster(bs.vertices, bs.faces, 2)
+    assert caustic_map(bs, caster, 1 << 10, 1.0, 0.01, seed=3, pass_index=0, max_depth=8) is None
+    caster.close()
 
 
 def test_a_glass_spheres_caustic_matches_volpath(tmp_path):
