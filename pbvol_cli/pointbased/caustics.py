@@ -39,8 +39,11 @@ CAUSTIC_STREAM = 0xCA057  # the photons' random streams (seed_state's stream, pl
 SHRINK_ALPHA = 2.0 / 3.0  # pass p's kernel area is pass 0's times (p + 1)^(alpha - 1)
 CELL_RADII = 2.0  # the grid's cells are this many kernel radii wide (at the photons' median distance from the
 # camera): a query scans the 2 x 2 x 2 cells its disc overlaps
-MAX_REACH = 2.0  # radii are capped at this many cells (a query scans at most 5 x 5 x 5: those of paths after a
+MAX_REACH = 1.0  # radii are capped at this many cells (a query scans at most 3 x 3 x 3: those of paths after a
 # diffuse bounce, whose footprint is wide)
+BUCKET_CAP = 64  # photons a grid bucket keeps at most, each of a fuller bucket kept with probability cap / count and
+# its power divided by that (unbiased): a large light's broad caustic (the bumpy sphere's) put hundreds in a
+# kernel, and gathering them cost 4 s a pass, where a few dozen are as good against the camera paths' own noise
 MAX_RADIUS = 0.02  # and at this share of the scene's extent: in a small image a few pixel footprints span an object,
 # and a kernel that wide gathers a floor's photons on the objects standing on it (a 10 x 10 image read 1.6 % bright)
 MIN_PHOTONS = 1 << 14  # photons a pass traces at least (a small image's photons per pixel are few in all)
@@ -259,11 +262,13 @@ def radius_scale(radius_px: float, pixel_angle: float, pass_index: int) -> float
     return radius_px * pixel_angle * (pass_index + 1.0) ** ((SHRINK_ALPHA - 1.0) / 2.0)
 
 
-def build_map(photons, scale: float, camera_pos: np.ndarray, max_radius: float = np.inf) -> CausticMap | None:
+def build_map(photons, scale: float, camera_pos: np.ndarray, max_radius: float = np.inf,
+              rng: np.random.Generator | None = None) -> CausticMap | None:
     """The photons (trace_photons' tuple) in a hashed grid whose cells are CELL_RADII kernel radii at their median
-    distance from the camera (scale: radius per unit of that distance). None where photons is None (the scene has
-    no caustic path); a map of no photons where none was stored (its caustic is then zero, and still replaces the
-    camera paths' emitters found after a diffuse bounce)."""
+    distance from the camera (scale: radius per unit of that distance), thinned to about BUCKET_CAP a bucket by
+    rng's uniform numbers (None: kept all). None where photons is None (the scene has no caustic path); a map of
+    no photons where none was stored (its caustic is then zero, and still replaces the camera paths' emitters
+    found after a diffuse bounce)."""
     if photons is None:
         return None
     pos, power, normal = photons
@@ -272,6 +277,11 @@ def build_map(photons, scale: float, camera_pos: np.ndarray, max_radius: float =
     ix = np.floor(pos / cell).astype(np.int64)
     buckets = 1 << max(4, int(len(pos) - 1).bit_length())
     b = _bucket(ix, buckets)
+    if rng is not None and len(pos):
+        keep_p = np.minimum(1.0, BUCKET_CAP / np.bincount(b, minlength=buckets)[b])
+        keep = rng.random(len(pos)) < keep_p
+        pos, normal, ix, b = pos[keep], normal[keep], ix[keep], b[keep]
+        power = power[keep] / keep_p[keep, None]
     order = np.argsort(b, kind="stable")
     start = np.zeros(buckets + 1, np.int64)
     np.cumsum(np.bincount(b, minlength=buckets), out=start[1:])
@@ -349,8 +359,9 @@ def irradiance(cmap: CausticMap, points: np.ndarray, facing: np.ndarray, distanc
 
 def caustic_map(bs: BuiltScene, caster, photons: int, radius_px: float, pixel_angle: float, seed: int,
                 pass_index: int, max_depth: int) -> CausticMap | None:
-    """Pass pass_index's caustic map: `photons` photons (at least MIN_PHOTONS) traced (trace_photons) in a grid
-    (build_map), None where the scene has no caustic path."""
+    """Pass pass_index's caustic map: `photons` photons (at least MIN_PHOTONS) traced (trace_photons) in a grid,
+    thinned where they crowd (build_map), None where the scene has no caustic path."""
     scale = radius_scale(radius_px, pixel_angle, pass_index)
     return build_map(trace_photons(bs, caster, max(photons, MIN_PHOTONS), seed, pass_index, max_depth), scale,
-                     bs.camera[CAM_POS:CAM_POS + 3], MAX_RADIUS * bs.extent)
+                     bs.camera[CAM_POS:CAM_POS + 3], MAX_RADIUS * bs.extent,
+                     np.random.default_rng([seed, pass_index, CAUSTIC_STREAM]))
