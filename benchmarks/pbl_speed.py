@@ -140,7 +140,7 @@ def main():
                           args.cache, args.out / f"{name}_512.exr")
             row["pbl_512_peak_mb"] = s["peak_memory_mb"]
         rows.append(row)
-        _plot(args.out / f"pbl_speed_{name}.png", name, curves, args.target)
+        _plot(args.out / f"pbl_speed_{name}.png", name, curves, args.target, row["reference_noise"])
     (args.out / "pbl_speed.json").write_text(json.dumps(rows, indent=1))
     lines = [f"| scene | pass s | volpath 16 spp s | pass / volpath 16 | pbl s to {args.target:g} | "
              f"volpath s to {args.target:g} | speed-up | pbl 512² MiB | Mitsuba's best s to {args.target:g} | "
@@ -225,7 +225,9 @@ def mitsuba_curves(args, name: str, scene: Path, ref, ref_noise: float) -> dict:
     return curves
 
 
-def _plot(path: Path, name: str, curves: dict, target: float):
+def _plot(path: Path, name: str, curves: dict, target: float, ref_noise: float = 0.0):
+    """The curves' relMSE against seconds, log-log, the target dashed; the reference's own noise dotted, and the
+    renders whose error fell below it (stored as 1e-12: not measurable against this reference) left out."""
     try:
         import matplotlib
 
@@ -236,8 +238,11 @@ def _plot(path: Path, name: str, curves: dict, target: float):
         return
     fig, ax = plt.subplots(figsize=(5, 3.5))
     for method, pts in curves.items():
+        pts = [p for p in pts if p[1] > 1e-12]
         ax.loglog([p[0] for p in pts], [p[1] for p in pts], "o-", label=method)
     ax.axhline(target, color="grey", lw=0.8, ls="--")
+    if ref_noise > 0:
+        ax.axhline(ref_noise, color="grey", lw=0.8, ls=":", label="the reference's own noise")
     ax.set_xlabel("seconds")
     ax.set_ylabel("relMSE")
     ax.set_title(name)

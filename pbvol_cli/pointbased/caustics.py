@@ -41,9 +41,10 @@ CELL_RADII = 2.0  # the grid's cells are this many kernel radii wide (at the pho
 # camera): a query scans the 2 x 2 x 2 cells its disc overlaps
 MAX_REACH = 1.0  # radii are capped at this many cells (a query scans at most 3 x 3 x 3: those of paths after a
 # diffuse bounce, whose footprint is wide)
-BUCKET_CAP = 64  # photons a grid bucket keeps at most, each of a fuller bucket kept with probability cap / count and
-# its power divided by that (unbiased): a large light's broad caustic (the bumpy sphere's) put hundreds in a
-# kernel, and gathering them cost 4 s a pass, where a few dozen are as good against the camera paths' own noise
+CELL_CAP = 64  # photons a grid cell keeps at most, each of a fuller cell kept with probability cap / count and its
+# power divided by that (unbiased): a large light's broad caustic (the bumpy sphere's) put hundreds in a kernel,
+# and gathering them cost 4 s a pass, where a few dozen are as good against the camera paths' own noise. (Per
+# cell, not per bucket: a sparse cell sharing a bucket with a crowded one would keep few photons of large power.)
 MAX_RADIUS = 0.02  # and at this share of the scene's extent: in a small image a few pixel footprints span an object,
 # and a kernel that wide gathers a floor's photons on the objects standing on it (a 10 x 10 image read 1.6 % bright)
 MIN_PHOTONS = 1 << 14  # photons a pass traces at least (a small image's photons per pixel are few in all)
@@ -265,8 +266,8 @@ def radius_scale(radius_px: float, pixel_angle: float, pass_index: int) -> float
 def build_map(photons, scale: float, camera_pos: np.ndarray, max_radius: float = np.inf,
               rng: np.random.Generator | None = None) -> CausticMap | None:
     """The photons (trace_photons' tuple) in a hashed grid whose cells are CELL_RADII kernel radii at their median
-    distance from the camera (scale: radius per unit of that distance), thinned to about BUCKET_CAP a bucket by
-    rng's uniform numbers (None: kept all). None where photons is None (the scene has no caustic path); a map of
+    distance from the camera (scale: radius per unit of that distance), thinned to about CELL_CAP a cell by rng's
+    uniform numbers (None: kept all). None where photons is None (the scene has no caustic path); a map of
     no photons where none was stored (its caustic is then zero, and still replaces the camera paths' emitters
     found after a diffuse bounce)."""
     if photons is None:
@@ -278,7 +279,7 @@ def build_map(photons, scale: float, camera_pos: np.ndarray, max_radius: float =
     buckets = 1 << max(4, int(len(pos) - 1).bit_length())
     b = _bucket(ix, buckets)
     if rng is not None and len(pos):
-        keep_p = np.minimum(1.0, BUCKET_CAP / np.bincount(b, minlength=buckets)[b])
+        keep_p = np.minimum(1.0, CELL_CAP / _cell_counts(ix))
         keep = rng.random(len(pos)) < keep_p
         pos, normal, ix, b = pos[keep], normal[keep], ix[keep], b[keep]
         power = power[keep] / keep_p[keep, None]
@@ -289,6 +290,17 @@ def build_map(photons, scale: float, camera_pos: np.ndarray, max_radius: float =
     return CausticMap(np.ascontiguousarray(pos[order]), np.ascontiguousarray(power[order]),
                       np.ascontiguousarray(normal[order]), np.ascontiguousarray(ix[order]), start, cell, scale, box,
                       float(max_radius))
+
+
+def _cell_counts(ix: np.ndarray) -> np.ndarray:
+    """How many of the photons share each photon's cell (ix: (n, 3) cell indices)."""
+    rel = ix - ix.min(axis=0)
+    if rel.max() < (1 << 21):  # the three indices packed in one int64, exactly
+        _, inverse, counts = np.unique((rel[:, 0] << 42) | (rel[:, 1] << 21) | rel[:, 2], return_inverse=True,
+                                       return_counts=True)
+    else:
+        _, inverse, counts = np.unique(ix, axis=0, return_inverse=True, return_counts=True)
+    return counts[inverse.ravel()]
 
 
 @njit(cache=True)
