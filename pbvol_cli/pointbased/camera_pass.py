@@ -464,7 +464,10 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
                           pixel_angle(bs), seed, max_depth=pbl.max_split_depth) if with_caustics else (lambda p: None)
     caustics = caustics_of(first_pass)
     if pbl.surface_paths == 0 and pbl.pilot_paths > 0 and entry is None and segment is None:
-        pilot = _pilot(bs, caster, pool, threads, seed, npix, W, pbl, settings, settings_b, caustics)
+        # (the pilot path traces the caustics: measured with the photons' smooth caustic, its counts crowded into
+        # a few pixels and the wax candle's first pass read relMSE 0.02-0.16 over seeds 1-6 against 0.01;
+        # docs/pbl.md, "Caustics from photons")
+        pilot = _pilot(bs, caster, pool, threads, seed, npix, W, pbl, settings, settings_b)
         first_k, stats.pilot_surface, pilot_den = pilot.counts, pilot.surface_variance, pilot.image ** 2 + 1e-2
     for p in range(first_pass, first_pass + spp):
         if time_limit is not None and passes > 0 and time.perf_counter() - t0 > time_limit:
@@ -575,13 +578,10 @@ def _flush_single_at_vertices(single_v, vertices, pool, threads):
     vertices.accumulate(np.arange(vertices.count), light)
 
 
-def _pilot(bs, caster, pool, threads, seed: int, npix: int, width: int, pbl, settings, settings_b,
-           caustics=None) -> Pilot:
+def _pilot(bs, caster, pool, threads, seed: int, npix: int, width: int, pbl, settings, settings_b) -> Pilot:
     """The first passes' path counts (pilot_surface_paths) from pbl.pilot_paths surface-only camera paths per pixel,
     traced before them with sample indices and random streams of their own (from PILOT_FIRST_SAMPLE): the counts
-    are independent of the paths they weigh, so the image stays unbiased; the pilot's light is not in the image.
-    caustics: the first pass's caustic map (or None), so that the pilot measures the surfaces as the passes see
-    them."""
+    are independent of the paths they weigh, so the image stays unbiased; the pilot's light is not in the image."""
     per = pbl.pilot_paths
     total, total_sq = np.zeros((npix, 3)), np.zeros((npix, 3))
     ranks = np.repeat(np.arange(per, dtype=np.int64)[None, :], npix, axis=0).ravel()
@@ -594,7 +594,7 @@ def _pilot(bs, caster, pool, threads, seed: int, npix: int, width: int, pbl, set
         n = len(pixels[part])
         light = _trace_batch(bs, caster, pool, threads, {}, seed, PILOT_FIRST_SAMPLE + c0, pixels[part],
                              PILOT_FIRST_SAMPLE + ranks[part], np.zeros(n, np.bool_), kpaths[pixels[part]], npix,
-                             settings, settings_b, pbl, layers, DeferredSingle(), caustics=caustics)
+                             settings, settings_b, pbl, layers, DeferredSingle())
         add_rows(total, pixels[part], light)  # (np.bincount's sums where a pixel's paths lie in one batch)
         add_rows(total_sq, pixels[part], light * light)
     mean = total / per
