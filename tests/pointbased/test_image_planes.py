@@ -115,7 +115,7 @@ def _grey_box(thickness: float, interface: str) -> dict:
                         "eta": 1.5, "medium": {"albedo": 0.999, "mean_free_path": 10.0 / thickness, "g": 0.0}}]}
 
 
-@pytest.mark.parametrize("interface", ["dielectric", "null"])
+@pytest.mark.parametrize("interface", ["dielectric", pytest.param("null", marks=pytest.mark.slow)])
 def test_a_flat_faced_box_30_thick_reads_volpaths_scattered_light(tmp_path, interface):
     """Under the flat faces' images a box 30 reduced mean free paths thick (half of it 0.82 diffusion lengths) read
     0.88 of volpath's scattered light behind eta 1.5 and 0.92 index-matched; with the images reaching the Milne value

@@ -2,6 +2,7 @@
 reproducibility."""
 
 import numpy as np
+import pytest
 
 from conftest import SPHERE_G, SPHERE_SIGMA_A, SPHERE_SIGMA_S, build, camera, medium_sphere_scene, volpath, write_scene
 from pbvol_cli.imageio import read_exr, read_layers
@@ -183,6 +184,7 @@ def test_time_limit_stops_after_whole_passes(tmp_path):
     assert np.isfinite(img).all() and img.sum() > 0
 
 
+@pytest.mark.slow  # (a long validation: the default run keeps a faster sibling)
 def test_index_matched_slab_furnace(tmp_path):
     """A non-absorbing slab 20 mean free paths thick and 80 wide (a box 1 x 4 x 4 at mean free path 0.05) in an
     index-matched boundary under a white sky, seen from above at its centre, renders the sky. Under its flat face

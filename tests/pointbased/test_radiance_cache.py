@@ -5,6 +5,7 @@ import math
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+import pytest
 
 from conftest import SPHERE_SIGMA_A, SPHERE_SIGMA_S, build, camera, medium_sphere_scene, smooth_layers
 from pbvol_cli.config import PblSettings
@@ -238,6 +239,7 @@ def test_the_blur_of_shared_bins_stays_below_the_noise_and_a_coarse_bin_is_caugh
     assert ratios[0.5, 0.5] < 1.5 and ratios[4.0, 4.0] > 3.0, ratios
 
 
+@pytest.mark.slow  # (a long validation: the default run keeps a faster sibling)
 def test_bins_two_mean_free_paths_wide_on_a_body_sixteen_across_stay_below_the_noise(tmp_path):
     """The default width along the boundary, 2 mean free paths, is bounded by an eighth of the medium's size
     (lateral_width): on the test sphere (4 mean free paths across) it stays about a cell, on the same sphere with a
@@ -267,6 +269,7 @@ def test_bins_two_mean_free_paths_wide_on_a_body_sixteen_across_stay_below_the_n
     assert ratio < 1.5 and evaluations < narrow
 
 
+@pytest.mark.slow  # (a long validation: the default run keeps a faster sibling)
 def test_the_bounced_lights_coarser_bins_blur_it_by_a_bounded_share(tmp_path):
     """bounced_bins (the bounced light's bins that many times the lights' in depth, width and direction:
     cache_settings(..., single=True)) on the test sphere made 4x denser (17 mean free paths across) behind eta 1.5:
