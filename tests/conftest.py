@@ -153,3 +153,18 @@ def random_volume_samples(rng, n, half=2.0):
     tree = build_octree(centre, lo, hi, d, power).arrays()
     return VolumeSamples(tree, start, d, length, power, area, centre, power, rb, ends, plane,
                          (empty_table().render_args(),) * 3, 0.0, node_lobes(tree))
+
+
+_AHEAD = {}
+
+
+def pytest_collection_finish(session):
+    import kernels_ahead
+
+    _AHEAD["proc"] = kernels_ahead.start(len(session.items))
+
+
+def pytest_sessionfinish(session, exitstatus):
+    import kernels_ahead
+
+    kernels_ahead.finish(_AHEAD.pop("proc", None))
