@@ -46,11 +46,11 @@ def start(count: int):
 
 
 def finish(proc):
-    """Waits for the compiling process (it has long finished by a full run's end), or stops it."""
+    """Stops the compiling process if it still runs (a run cut short; a full run outlasts it by minutes). numba
+    writes each cache file whole under a temporary name and renames it, so a stopped compile leaves no entry to
+    trust."""
     if proc is None:
         return
-    try:
-        proc.wait(timeout=60)
-    except subprocess.TimeoutExpired:
+    if proc.poll() is None:
         proc.kill()
-        proc.wait()
+    proc.wait()
