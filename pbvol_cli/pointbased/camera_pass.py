@@ -295,11 +295,7 @@ class DiffuseShare:
 def _spread(values: np.ndarray, width: int) -> np.ndarray:
     """Each pixel's value raised to the mean of its 3 x 3 neighbourhood where that is larger: a rare event (a
     caustic path) seen in one pixel is likely in its neighbours too."""
-    img = values.reshape(-1, width)
-    pad = np.pad(img, 1, mode="edge")
-    box = sum(pad[1 + dy:1 + dy + img.shape[0], 1 + dx:1 + dx + img.shape[1]] for dy in (-1, 0, 1)
-              for dx in (-1, 0, 1)) / 9.0
-    return np.maximum(img, box).ravel()
+    return np.maximum(values, neighbourhood_sums(values[:, None], width)[:, 0] / 9.0)
 
 
 class PixelStatistics:
@@ -479,7 +475,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         else:  # auto: from the passes so far, once two are in (the image so far weighs them as relMSE does)
             k = stats.next_paths(image_so_far, spp - passes + 1) if image_so_far is not None else None
             if k is None:
-                k = first_k if first_k is not None else np.full(npix, AUTO_FIRST_PATHS, np.int64)
+                k = first_k if first_k is not None else np.full(npix, pbl.first_paths, np.int64)
         ks.append(float(k.mean()))
         # (like the auto counts, the share follows the passes before: with a fixed count k every ray plays, so that
         # a part of a render repeats its passes bit for bit, docs/distributed.md)
@@ -580,7 +576,7 @@ def _flush_single_at_vertices(single_v, vertices, pool, threads):
 
 def _pilot(bs, caster, pool, threads, seed: int, npix: int, width: int, pbl, settings, settings_b) -> Pilot:
     """The first passes' path counts (pilot_surface_paths) from pbl.pilot_paths surface-only camera paths per pixel,
-    traced before them with sample indices and random streams of their own (from PILOT_FIRST_SAMPLE): the counts
+    each pixel's variance and mean taken over the paths of its 3 x 3 neighbourhood, traced before them with sample indices and random streams of their own (from PILOT_FIRST_SAMPLE): the counts
     are independent of the paths they weigh, so the image stays unbiased; the pilot's light is not in the image."""
     per = pbl.pilot_paths
     total, total_sq = np.zeros((npix, 3)), np.zeros((npix, 3))
@@ -597,10 +593,25 @@ def _pilot(bs, caster, pool, threads, seed: int, npix: int, width: int, pbl, set
                              settings, settings_b, pbl, layers, DeferredSingle())
         add_rows(total, pixels[part], light)  # (np.bincount's sums where a pixel's paths lie in one batch)
         add_rows(total_sq, pixels[part], light * light)
+    # each pixel's variance from the paths of its 3 x 3 neighbourhood pooled: a rare hit (a small light's mirror
+    # image) found by any of them raises the pixel's count, so that one path a pixel finds what four a pixel found
+    # alone, at a quarter of the cost (docs/pbl.md, section 9, "A pooled pilot")
+    total, total_sq = neighbourhood_sums(total, width), neighbourhood_sums(total_sq, width)
+    per *= 9
     mean = total / per
     var = np.maximum(total_sq - total * mean, 0.0) / max(per - 1, 1)
     relative = (var / (mean ** 2 + 1e-2)).mean(axis=1)
-    return Pilot(pilot_surface_paths(relative, width), relative, mean)
+    return Pilot(pilot_surface_paths(relative, width, pbl.first_paths), relative, mean)
+
+
+def neighbourhood_sums(values: np.ndarray, width: int) -> np.ndarray:
+    """Each pixel's sum of values (npix, c) over its 3 x 3 neighbourhood, the image's edge rows and columns
+    repeated beyond it (every pixel sums nine)."""
+    img = values.reshape(-1, width, values.shape[1])
+    h = img.shape[0]
+    pad = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    return sum(pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + width] for dy in (-1, 0, 1)
+               for dx in (-1, 0, 1)).reshape(values.shape)
 
 
 def first_path_indices(surface_paths: int, first_pass: int, npix: int) -> tuple[int, int]:

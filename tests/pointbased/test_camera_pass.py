@@ -10,7 +10,8 @@ from pbvol_cli.imageio import read_exr, read_layers
 from pbvol_cli.pipeline.render import RenderOptions, render_scene
 from pbvol_cli.pointbased.camera_pass import (AUTO_FIRST_PATHS, AUTO_MAX_PATHS, DIFFUSE_COST, DIFFUSE_SHARE_MIN,
                                               PASS_COST_RATIO, DiffuseShare, PixelStatistics, add_rows,
-                                              auto_surface_paths, diffuse_share, pass_paths, pilot_surface_paths)
+                                              auto_surface_paths, diffuse_share, neighbourhood_sums, pass_paths,
+                                              pilot_surface_paths)
 
 
 @pytest.mark.parametrize("light", ["quad", "sphere"])
@@ -138,6 +139,23 @@ def test_pilot_paths_keep_the_mean_count_and_follow_the_square_root_of_the_noise
     assert 8 * far <= k[210] - 1 <= 12 * far, (k[210], k[0])
     assert k[209] > k[0] and k[231] > k[0]  # its neighbours (10, 9) and (11, 11)
     assert np.array_equal(pilot_surface_paths(np.zeros(400), 20), np.full(400, AUTO_FIRST_PATHS))
+
+
+def test_neighbourhood_sums_add_each_pixels_nine_neighbours_with_the_edges_repeated():
+    """neighbourhood_sums (the pilot pools its paths over each pixel's 3 x 3 neighbourhood): inside the image the
+    sum of the nine pixels around, at an edge or a corner the edge's pixels counted again in place of those beyond
+    it, every channel on its own; a constant image sums to nine times itself."""
+    rng = np.random.default_rng(5)
+    h, w = 4, 6
+    v = rng.random((h * w, 2))
+    got = neighbourhood_sums(v, w).reshape(h, w, 2)
+    img = v.reshape(h, w, 2)
+    for y in range(h):
+        for x in range(w):
+            want = sum(img[min(max(y + dy, 0), h - 1), min(max(x + dx, 0), w - 1)] for dy in (-1, 0, 1)
+                       for dx in (-1, 0, 1))
+            assert np.allclose(got[y, x], want), (y, x)
+    assert np.allclose(neighbourhood_sums(np.full((h * w, 3), 0.5), w), 4.5)
 
 
 def test_pixel_statistics_measure_the_variances_and_give_noisy_pixels_more_paths():
@@ -309,6 +327,10 @@ def test_auto_surface_paths_follow_the_noise_and_keep_the_image(tmp_path):
     render_scene(write_scene(tmp_path, dark), tmp_path / "d.exr", RenderOptions(method="pbl", spp=3,
                                                                                cache_dir=tmp_path, quiet=True))
     assert read_exr(tmp_path / "d.exr")[1]["surface_paths_per_pass"] == "8,8,1"
+    dark["render"]["pbl"]["first_paths"] = 3  # the first two passes' mean, where the medium's noise rules
+    render_scene(write_scene(tmp_path, dark), tmp_path / "d.exr", RenderOptions(method="pbl", spp=3,
+                                                                               cache_dir=tmp_path, quiet=True))
+    assert read_exr(tmp_path / "d.exr")[1]["surface_paths_per_pass"] == "3,3,1"
 
 
 @pytest.mark.parametrize("setting", ["roulette_single", "roulette", "surface_roulette"])
