@@ -458,10 +458,13 @@ class PblSettings(Strict):
                                "traced, cheap) take them all, the medium one of them chosen at random (weighted: "
                                "unbiased); 0: auto, 8 for the first two passes, then per pass from the surfaces' and "
                                "the medium's measured noise")
-    pilot_paths: Int = Field(1, ge=0, le=64, description="with surface_paths 0 (auto): surface-only camera paths "
+    pilot_paths: Int = Field(4, ge=0, le=64, description="with surface_paths 0 (auto): surface-only camera paths "
                              "per pixel traced before the first pass, not in the image; the first two passes' "
-                             "paths (first_paths a pixel on average) follow their noise, each pixel's measured "
-                             "over its 3 x 3 neighbourhood (0: first_paths in every pixel)")
+                             "paths (first_paths a pixel on average) follow their noise (0: first_paths in every "
+                             "pixel)")
+    pilot_pool: Bool = Field(False, description="the pilot's variance and mean of each pixel taken over the paths "
+                             "of its 3 x 3 neighbourhood: one path a pixel then finds a small light's mirror image "
+                             "as four did (the oil sphere; on the wax candle it lost a little)")
     first_paths: Int = Field(8, ge=1, le=128, description="with surface_paths 0 (auto): camera paths per pixel on "
                              "average in the first two passes, before the passes' own noise sets the counts")
     bounce_samples: Int = Field(1000, ge=16, le=10**7,

@@ -576,7 +576,8 @@ def _flush_single_at_vertices(single_v, vertices, pool, threads):
 
 def _pilot(bs, caster, pool, threads, seed: int, npix: int, width: int, pbl, settings, settings_b) -> Pilot:
     """The first passes' path counts (pilot_surface_paths) from pbl.pilot_paths surface-only camera paths per pixel,
-    each pixel's variance and mean taken over the paths of its 3 x 3 neighbourhood, traced before them with sample indices and random streams of their own (from PILOT_FIRST_SAMPLE): the counts
+    each pixel's variance and mean taken over its own paths or (pbl.pilot_pool) over the paths of its 3 x 3
+    neighbourhood, traced before them with sample indices and random streams of their own (from PILOT_FIRST_SAMPLE): the counts
     are independent of the paths they weigh, so the image stays unbiased; the pilot's light is not in the image."""
     per = pbl.pilot_paths
     total, total_sq = np.zeros((npix, 3)), np.zeros((npix, 3))
@@ -593,11 +594,12 @@ def _pilot(bs, caster, pool, threads, seed: int, npix: int, width: int, pbl, set
                              settings, settings_b, pbl, layers, DeferredSingle())
         add_rows(total, pixels[part], light)  # (np.bincount's sums where a pixel's paths lie in one batch)
         add_rows(total_sq, pixels[part], light * light)
-    # each pixel's variance from the paths of its 3 x 3 neighbourhood pooled: a rare hit (a small light's mirror
-    # image) found by any of them raises the pixel's count, so that one path a pixel finds what four a pixel found
-    # alone, at a quarter of the cost (docs/pbl.md, section 9, "A pooled pilot")
-    total, total_sq = neighbourhood_sums(total, width), neighbourhood_sums(total_sq, width)
-    per *= 9
+    if pbl.pilot_pool:
+        # each pixel's variance from the paths of its 3 x 3 neighbourhood: a rare hit (a small light's mirror image)
+        # found by any of them raises the pixel's count, so that one path a pixel finds what four a pixel found
+        # alone, at a quarter of the cost (docs/pbl.md, section 9, "A pooled pilot")
+        total, total_sq = neighbourhood_sums(total, width), neighbourhood_sums(total_sq, width)
+        per *= 9
     mean = total / per
     var = np.maximum(total_sq - total * mean, 0.0) / max(per - 1, 1)
     relative = (var / (mean ** 2 + 1e-2)).mean(axis=1)

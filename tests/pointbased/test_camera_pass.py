@@ -298,7 +298,7 @@ def test_auto_surface_paths_follow_the_noise_and_keep_the_image(tmp_path):
     more where the surfaces' noise rules (a
     floor under a sky beside a thin medium) and one where there is no surface light at all (the medium under a
     directional light against black). The image's mean stays that of a fixed k (4 standard errors of the seeds'
-    spread), and the same seed gives the same image."""
+    spread), with a pooled pilot too (pilot_pool), and the same seed gives the same image."""
     floor = _floor_scene()
     floor["lights"] = [{"type": "environment", "radiance": 0.5}]
     floor["shapes"][0]["medium"] = {"sigma_a": 0.05, "sigma_s": 0.05, "g": 0.0}
@@ -321,6 +321,12 @@ def test_auto_surface_paths_follow_the_noise_and_keep_the_image(tmp_path):
     render_scene(tmp_path / "scene.toml", tmp_path / "p.exr", RenderOptions(method="pbl", spp=4, seed=3,
                                                                            cache_dir=tmp_path, quiet=True))
     assert np.array_equal(read_exr(tmp_path / "p.exr")[0], read_exr(tmp_path / "o.exr")[0])
+    # a pilot of one path a pixel pooled over each pixel's neighbours (pilot_pool) places the paths otherwise,
+    # and the image keeps its mean
+    floor["render"]["pbl"].update(surface_paths=0, pilot_paths=1, pilot_pool=True)
+    pooled = np.array([read_exr(out)[0].astype(float).mean() for out in _seed_renders(tmp_path, floor, spp=4)])
+    se = math.hypot(pooled.std(ddof=1), means[8].std(ddof=1)) / 2
+    assert abs(pooled.mean() - means[8].mean()) < 4 * se + 1e-12, (pooled.mean(), means[8].mean(), se)
 
     dark = medium_sphere_scene(surface_samples=500, segments_per_beam=2, bounce_samples=64)
     dark["camera"]["resolution"] = [8, 8]
