@@ -23,7 +23,7 @@ from pbvol_cli.physics.phase import INV_4PI, phase_eval
 from pbvol_cli.physics.sampling import rand
 from pbvol_cli.pointbased.octree import (LEAF_WALK_STACK, LOBE_ALIGN, LOBE_CENTRE, LOBE_DIR, LOBE_EXT2, LOBE_HI,
                                          LOBE_LO, LOBE_POWER, LOBE_SPREAD2, next_leaf)
-from pbvol_cli.pointbased.sources import sample_terms
+from pbvol_cli.pointbased.sources import NEAR_ALONG, sample_terms
 
 CUT_CAP = 4096  # nodes a cut may hold at once (a node that would overflow it is used as it is)
 MULTIPLE_CUT_SHARE = 4  # multiple scattering (smooth) uses the cut after cut_size / 4 refinements
@@ -279,9 +279,10 @@ def _cut_estimate(heap, hn, node_of, vs, med, q, rclamp, do_double, do_multiple,
 
 @njit(cache=True)
 def _near_field(vs, med, q, rclamp, out_d, out_m):
-    """Double scattering's near part (near_weight with split = vs.r_near) from every sample whose segment passes
-    within r_near of P: the octree's boxes widened by r_near, walked like single scattering's. Returns the
-    samples evaluated."""
+    """Double scattering's near part (near_weight with split = vs.r_near) from every sample whose segment comes
+    within r_near of P in beam distance (sources.beam_distance: the stretch along its line divided by NEAR_ALONG):
+    the octree's boxes widened by the farthest such point, walked like single scattering's. Returns the samples
+    evaluated."""
     tree, v_start, v_dir, v_len = vs.tree, vs.start, vs.dir, vs.len
     order, start, end = tree[0], tree[8], tree[9]
     stack = np.empty(LEAF_WALK_STACK, np.int64)
@@ -289,16 +290,18 @@ def _near_field(vs, med, q, rclamp, out_d, out_m):
     stack[0] = 0
     n = 0
     R = vs.r_near
+    reach = R * math.sqrt(1.0 + NEAR_ALONG * NEAR_ALONG)  # the farthest point of beam distance R
     while True:
-        nd = next_leaf(tree, stack, sp, q.x, q.y, q.z, R)
+        nd = next_leaf(tree, stack, sp, q.x, q.y, q.z, reach)
         if nd < 0:
             break
         for k in range(start[nd], end[nd]):
             i = order[k]
             qx, qy, qz = q.x - v_start[i, 0], q.y - v_start[i, 1], q.z - v_start[i, 2]
-            t = min(max(qx * v_dir[i, 0] + qy * v_dir[i, 1] + qz * v_dir[i, 2], 0.0), v_len[i])
-            rx, ry, rz = qx - t * v_dir[i, 0], qy - t * v_dir[i, 1], qz - t * v_dir[i, 2]
-            if rx * rx + ry * ry + rz * rz >= R * R:
+            tp = qx * v_dir[i, 0] + qy * v_dir[i, 1] + qz * v_dir[i, 2]
+            across2 = qx * qx + qy * qy + qz * qz - tp * tp  # (P from the segment's line)
+            along = max(-tp, tp - v_len[i], 0.0)  # (from P's foot to the segment)
+            if across2 + (along / NEAR_ALONG) ** 2 >= R * R:  # no point of the segment within beam distance R
                 continue
             n += 1
             sample_terms(i, vs, med, q, rclamp, as_runtime(True), as_runtime(False), R, 0.5, out_d, out_m)

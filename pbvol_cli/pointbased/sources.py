@@ -31,11 +31,23 @@ NEAR_READ_TRANSPORT = 1.0  # the multiple term reads the table no nearer a sourc
 # this many transport mean free paths of the densest channel (source_terms)
 NEAR_SUB = 8  # sub-points along a segment that is close to P (double scattering)
 MS_CELL = 0.1  # mean free paths: segments longer than this are split for the multiple-scattering look-up
+NEAR_ALONG = 3.0  # double scattering's near field reaches this many times farther along a source's beam than across
+# it (beam_distance): a beam passing through P puts its upstream segments just beyond r_near, each a tiny share of
+# the power, and the cut drew them rarely with large weights (the milk glass's tails, docs/pbl.md)
+
+
+@njit(inline="always", cache=True)
+def beam_distance(rx, ry, rz, dx, dy, dz):
+    """The distance near_weight judges between a source point and P = the point + (rx, ry, rz): the part across
+    the source's beam (unit direction d) as it is, the part along it divided by NEAR_ALONG."""
+    a = rx * dx + ry * dy + rz * dz
+    across2 = max(rx * rx + ry * ry + rz * rz - a * a, 0.0)
+    return math.sqrt(across2 + (a / NEAR_ALONG) ** 2)
 
 
 @njit(inline="always", cache=True)
 def near_weight(r, split):
-    """The share of double scattering's kernel at distance r that a pass takes: split = 0, all of it; split = R > 0,
+    """The share of double scattering's kernel at beam distance r (beam_distance) that a pass takes: split = 0, all of it; split = R > 0,
     the near field's, 1 within R/2 falling linearly to 0 at R (summed over every source there: light_cut's near
     pass); split = -R, the rest (by the stochastic cut). The two parts sum to 1 at every r."""
     if split == 0.0:
@@ -100,7 +112,7 @@ def source_terms(src, plane, med, q, rclamp, do_double, do_multiple, tabs, split
     rx, ry, rz = px - x, py - y, pz - z
     r2 = rx * rx + ry * ry + rz * rz
     r = math.sqrt(r2)
-    part = near_weight(r, split) if do_double else 0.0
+    part = near_weight(beam_distance(rx, ry, rz, dx, dy, dz), split) if do_double else 0.0
     near = near_radius(src, qn - (nx * x + ny * y + nz * z) if qn < np.inf else np.inf, med, rclamp)
     if part > 0.0 and r > 0.0:
         c = near

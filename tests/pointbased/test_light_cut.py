@@ -13,7 +13,7 @@ from pbvol_cli.pointbased.inverse_square import attenuated_inv_r2_ball
 from pbvol_cli.pointbased.light_cut import double_multiple
 from pbvol_cli.pointbased.octree import (LOBE_CENTRE, LOBE_EXT2, LOBE_HI, LOBE_LO, LOBE_SPREAD2, build_octree,
                                          node_lobes)
-from pbvol_cli.pointbased.sources import Source, source_terms
+from pbvol_cli.pointbased.sources import NEAR_ALONG, Source, source_terms
 from pbvol_cli.pointbased.volume_samples import NO_PLANE, Medium, Query, SampleSet, VolumeSamples, medium_params
 
 SIG_S, SIG_A, G = np.array([0.6, 1.0, 2.0]), np.array([0.2, 0.5, 0.1]), 0.5
@@ -249,3 +249,64 @@ def test_nodes_whose_boxes_all_hold_the_point_are_told_apart_by_their_spread():
     for do_double in (True, False):
         spreads = _cut_spreads(vs, med, q, (vs.lobes, _centroid_floor(vs.lobes, np.zeros(3))), 2000, do_double)
         assert spreads[0] < 0.9 * spreads[1], (do_double, spreads)
+
+
+def test_a_beam_through_the_point_is_summed_along_it_not_drawn():
+    """Double scattering near P from a beam that passes through P (inside its own radius), its segments upstream of
+    P at 1.2 to 2.8 near-field radii: the near field reaches NEAR_ALONG times farther along a beam than across it
+    (sources.beam_distance), so those segments are summed (partly) exactly instead of drawn by the cut from among
+    sources (a milk glass's bins read 40x their mean from such a draw). Among 20 000 brighter sources all around
+    P, the estimate stays unbiased (4 standard errors over 3000 estimates) and one estimate's standard deviation
+    stays under three times the exact sum."""
+    rng = np.random.default_rng(8)
+    n_far = 20000
+    far = rng.normal(size=(n_far, 3)) * 1.5  # bright sources all around P
+    far = far[np.linalg.norm(far, axis=1) > 0.5]
+    n_far = len(far)
+    R = 0.25
+    P = np.zeros(3)
+    w = np.array([0.0, 0.0, 1.0])  # toward the camera: along the beam, into its forward lobe
+    beam = np.array([[0.02, 0.0, -z] for z in np.linspace(1.2 * R, 2.8 * R, 6)])  # upstream of P along +z
+    assert NEAR_ALONG * R > 2.8 * R  # (all of them within the near field's reach along the beam)
+    centre = np.concatenate([far, beam])
+    n = len(centre)
+    d = np.concatenate([rng.normal(size=(n_far, 3)), np.tile([0.0, 0.0, 1.0], (len(beam), 1))])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    scat = np.concatenate([np.full((n_far, 3), 0.1), np.full((len(beam), 3), 1e-3)])
+    length, rb = np.zeros(n), np.full(n, 0.05)
+    no_plane = np.tile([0.0, 0.0, 1.0, np.inf] * 2, (n, 1))
+    tree = build_octree(centre, centre - 0.05, centre + 0.05, d, scat).arrays()
+    tabs = (empty_table().render_args(),) * 3
+    sig_s, sig_a, g = np.full(3, 0.5), np.full(3, 0.05), 0.9
+    exact = np.zeros(3)
+    for i in range(n):
+        r = P - centre[i]
+        dist = np.linalg.norm(r)
+        m = r / dist
+        f = phase_eval(1, g, m @ w) * phase_eval(1, g, d[i] @ m)
+        exact += sig_s * scat[i] * f * np.array([attenuated_inv_r2_ball(dist, 0.02, st) for st in sig_s + sig_a])
+    beam_share = 1.0 - exact_share_of(n_far, centre, d, scat, P, w, sig_s, sig_a, g) / exact[0]
+    assert beam_share > 0.5  # the beam holds most of P's double scattering
+    vs = VolumeSamples(tree, centre.copy(), d, length, scat, np.zeros(n), centre, scat, rb, np.zeros(n, np.int64),
+                       no_plane, tabs, R, node_lobes(tree))
+    med, q = Medium(sig_a, sig_s, 1, g), Query(*P, *w, NO_PLANE)
+    state = np.array([11], np.uint64)
+    runs, out_m = np.zeros((3000, 3)), np.zeros(3)
+    for k in range(len(runs)):
+        double_multiple(vs, med, q, 4, 0.02, True, False, runs[k], out_m, state, 0)
+    mean, se = runs.mean(0), runs.std(0) / np.sqrt(len(runs))
+    assert np.all(np.abs(mean - exact) < 4 * se + 1e-12 * exact), (mean, exact, se)
+    # one estimate's spread: 1.7x the exact sum, 8.5x where the near field reached as far along a beam as across
+    assert runs[:, 0].std() < 3.0 * exact[0], (runs[:, 0].std(), exact[0])
+
+
+def exact_share_of(count, centre, d, scat, P, w, sig_s, sig_a, g):
+    """The red channel's double scattering at P from the first `count` point sources (as the test's sum)."""
+    total = 0.0
+    for i in range(count):
+        r = P - centre[i]
+        dist = np.linalg.norm(r)
+        m = r / dist
+        f = phase_eval(1, g, m @ w) * phase_eval(1, g, d[i] @ m)
+        total += sig_s[0] * scat[i, 0] * f * attenuated_inv_r2_ball(dist, 0.02, sig_s[0] + sig_a[0])
+    return total
