@@ -427,12 +427,15 @@ class PblSettings(Strict):
                                 "this many pixel footprints wide (path-space filtering: the glow of a medium on a "
                                 "table converges with the medium, blurred over about a cell; the milk glass's "
                                 "error halved at two and eight passes; docs/pbl.md); 0: each path's own")
-    similarity: Literal["none", "delta-eddington"] = Field(
-        "none", description="delta-eddington: each Henyey-Greenstein medium of g > 0 is rendered as its "
-        "delta-Eddington equivalent (a forward delta of weight g^2 folded into the beams: sigma_s x (1 - g^2), "
-        "g / (1 + g); the transport coefficient kept). Far less noise where a strong forward lobe (g near 0.9) "
-        "meets a large light, a bias within a few degrees of the light's direction (docs/pbl.md); the layers are "
-        "then no longer the scattering orders. none: the medium as given")
+    similarity: Literal["none", "truncated", "delta-eddington"] = Field(
+        "none", description="a strong forward lobe (g near 0.9) under a large light is sampled by few beam directions "
+        "and gives pbl spikes; these fold its forward peak into the beams as unscattered light. truncated: each "
+        "Henyey-Greenstein medium of g > 0 has its lobe capped at its value 26 degrees off its axis and renormalised "
+        "(sigma_s x 0.30 at g 0.9), the phase function exact beyond: a bias from light deflected by less than that, "
+        "half the delta-Eddington transform's on the bumpy sphere at eight passes, a little more noise at one. "
+        "delta-eddington: a forward delta of weight g^2 (sigma_s x (1 - g^2), g / (1 + g); the transport coefficient "
+        "kept), the least noise, a bias of 5-10 % over a body a few mean free paths across (docs/pbl.md, section 2). "
+        "Either way the layers are then no longer the scattering orders. none: the medium as given")
     cut_size: Int = Field(8, ge=0, le=64, description="octree refinements per point for double and multiple scattering "
                           "(stochastic light cut: more = less noise, more time)")
     clamp: Num = Field(0.02, ge=0, description="smallest radius a source's 1/r^2 is averaged over (double "

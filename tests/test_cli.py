@@ -250,6 +250,11 @@ def test_check_says_what_the_similarity_transform_does_to_each_medium(tmp_path):
     iso = {**_with_shape(medium={"albedo": 0.9, "mean_free_path": 0.1, "g": 0.0}), "render": scene["render"]}
     d = json.loads(runner.invoke(app, ["check", str(write_scene(tmp_path, iso)), "--json"]).stdout)
     assert len(d["notes"]) == 1 and "leaves it as given (hg, g 0)" in d["notes"][0]
+    scene["render"]["pbl"]["similarity"] = "truncated"
+    d = json.loads(runner.invoke(app, ["check", str(write_scene(tmp_path, scene)), "--json"]).stdout)
+    assert d["notes"] == [("wax: pbl renders it with its lobe's forward peak (within 26 degrees) taken as unscattered "
+                           "([render.pbl] similarity: sigma_s x 0.579, the phase function exact beyond; docs/pbl.md, "
+                           "section 2)")]
 
 
 def test_check_summarises_the_scene(tmp_path):

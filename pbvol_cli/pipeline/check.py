@@ -57,22 +57,31 @@ def describe(scene: C.Scene, path: Path) -> dict:
 
 
 def _similarity_notes(scene: C.Scene, b) -> list[str]:
-    """What [render.pbl] similarity = "delta-eddington" does to each medium: pbl's image is of the transformed one
+    """What [render.pbl] similarity does to each medium: pbl's image is of the transformed one
     (pointbased/similarity.py), and a medium it cannot transform is rendered as given."""
-    from pbvol_cli.pointbased.similarity import delta_eddington_coefficients, transformed
+    import math
 
-    if scene.render.pbl.similarity != "delta-eddington":
+    from pbvol_cli.physics.phase import TRUNCATION_COS, truncated_share
+    from pbvol_cli.pointbased.similarity import TRUNCATED_MIN_G, delta_eddington_coefficients, transformed
+
+    choice = scene.render.pbl.similarity
+    if choice == "none":
         return []
     notes = []
     for mi in b.medium_info:
         g = mi.material.g
-        if transformed(mi.material.phase, g):
+        if not transformed(mi.material.phase, g) or (choice == "truncated" and g < TRUNCATED_MIN_G):
+            notes.append(f"{mi.label}: [render.pbl] similarity leaves it as given ({mi.material.phase}, g {g:g}): "
+                         "only Henyey-Greenstein media of g > 0 have a forward peak to fold into the beams")
+        elif choice == "delta-eddington":
             _, g2 = delta_eddington_coefficients(mi.sigma_s, g)
             notes.append(f"{mi.label}: pbl renders it as its delta-Eddington equivalent ([render.pbl] similarity: "
                          f"g {g:g} -> {g2:.3g}, sigma_s x {1.0 - g * g:.3g}; docs/pbl.md, section 2)")
         else:
-            notes.append(f"{mi.label}: [render.pbl] similarity leaves it as given ({mi.material.phase}, g {g:g}): "
-                         "only Henyey-Greenstein media of g > 0 have a forward peak to fold into the beams")
+            angle = math.degrees(math.acos(TRUNCATION_COS))
+            notes.append(f"{mi.label}: pbl renders it with its lobe's forward peak (within {angle:.0f} degrees) "
+                         f"taken as unscattered ([render.pbl] similarity: sigma_s x {truncated_share(g):.3g}, "
+                         "the phase function exact beyond; docs/pbl.md, section 2)")
     return notes
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from pbvol_cli import config as C
 from pbvol_cli.multiple_scattering.table import TableSettings
-from pbvol_cli.physics.phase import KINDS
+from pbvol_cli.physics.phase import KINDS, mean_cosine
 
 
 @dataclass
@@ -23,21 +23,24 @@ class MediumTables:
 def media_of_file(path: Path, particles: int | None, seed: int | None) -> list[MediumTables]:
     """The tables of a scene file's media, as a pbl render reads them (after [render.pbl] similarity, each table as
     wide as its body needs: pipeline/lut.table_groups), or of a material file (no body: the default extent)."""
-    from pbvol_cli.geometry.scene_build import MED_G, build_scene
+    from pbvol_cli.geometry.scene_build import MED_G, MED_PHASE, build_scene
     from pbvol_cli.pipeline.lut import table_groups
     from pbvol_cli.pipeline.render import pbl_media
+    from pbvol_cli.pointbased.similarity import NAMES
 
     data = C.read_toml(path)
     if "camera" in data or "shapes" in data:
         scene = C.load_scene(path)
         built = pbl_media(build_scene(scene, path), scene.render.pbl, "pbl")
+        names = {v: k for k, v in KINDS.items()}
         out = []
         for m, info in enumerate(built.medium_info):
-            g, mat = float(built.media[m, MED_G]), info.material
-            label = info.label + (" (delta-Eddington)" if g != mat.g else "")
-            out.append(MediumTables(label, g, mat.phase, table_groups(*built.medium_sigmas(m), g,
-                                                                      built.medium_side(m), scene.render.lut,
-                                                                      particles, seed)))
+            kind, g, mat = int(built.media[m, MED_PHASE]), float(built.media[m, MED_G]), info.material
+            changed = kind != KINDS[mat.phase] or g != mat.g  # (by [render.pbl] similarity)
+            label = info.label + (f" ({NAMES[scene.render.pbl.similarity]})" if changed else "")
+            out.append(MediumTables(label, g, names[kind], table_groups(*built.medium_sigmas(m),
+                                                                        mean_cosine(kind, g), built.medium_side(m),
+                                                                        scene.render.lut, particles, seed)))
         return out
     mat = C.load_material(path)
     sigma_a, sigma_s = mat.coefficients(mat.length_unit)

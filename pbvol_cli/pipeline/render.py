@@ -415,10 +415,10 @@ class LightSide:
 def pbl_media(built, pbl, method: str):
     """The scene as the point-based method renders it: its media after pbl.similarity (pointbased/similarity.py), for
     --method pbl only (the dipole's single scattering takes the media as given). built itself when unchanged."""
-    from pbvol_cli.pointbased.similarity import delta_eddington
+    from pbvol_cli.pointbased.similarity import TRANSFORMS
 
-    if method == "pbl" and pbl.similarity == "delta-eddington":
-        return replace(built, media=delta_eddington(built.media))
+    if method == "pbl" and pbl.similarity in TRANSFORMS:
+        return replace(built, media=TRANSFORMS[pbl.similarity](built.media))
     return built
 
 
@@ -435,11 +435,11 @@ def _note_thick_bodies(built, scene_path, extent: float):
 
 def light_side(scene, built, seed, threads, opts, scene_path) -> LightSide:
     """The light side of a pbl or dipole render from the cache (built and stored when missing)."""
-    from pbvol_cli.geometry.scene_build import MED_G
+    from pbvol_cli.geometry.scene_build import MED_G, MED_PHASE
     from pbvol_cli.pipeline.cache import cache_dir
     from pbvol_cli.pipeline.lut import get_table, table_groups
     from pbvol_cli.pipeline.samples import get_light_samples
-    from pbvol_cli.physics.phase import KINDS
+    from pbvol_cli.physics.phase import mean_cosine
     from pbvol_cli.pointbased.camera_pass import COMPONENTS
     from pbvol_cli.pointbased.passes import TABLE_COMPONENTS
 
@@ -479,14 +479,15 @@ def light_side(scene, built, seed, threads, opts, scene_path) -> LightSide:
     t0 = time.perf_counter()
     tables, table_names = {}, {}
     wanted = any(c in pbl.components for c in TABLE_COMPONENTS)
-    for m, info in enumerate(built.medium_info):
+    for m in range(len(built.medium_info)):
         tables[m], table_names[m] = [None] * 3, [None] * 3
         if not wanted:
             continue
-        g = float(built.media[m, MED_G])  # (the material's, or its similarity transform's)
-        for alpha, channels, settings in table_groups(*built.medium_sigmas(m), g, built.medium_side(m),
-                                                      scene.render.lut):
-            r = get_table(alpha, g, KINDS[info.material.phase], settings, cache)
+        # the phase function as pbl renders it: the material's, or its similarity transform's
+        kind, g = int(built.media[m, MED_PHASE]), float(built.media[m, MED_G])
+        for alpha, channels, settings in table_groups(*built.medium_sigmas(m), mean_cosine(kind, g),
+                                                      built.medium_side(m), scene.render.lut):
+            r = get_table(alpha, g, kind, settings, cache)
             for c in channels:
                 tables[m][c], table_names[m][c] = r.table, r.path.name
     stages["tables_s"] = time.perf_counter() - t0

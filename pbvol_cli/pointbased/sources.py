@@ -18,7 +18,7 @@ from numba import njit
 
 from pbvol_cli.jit import as_runtime
 from pbvol_cli.multiple_scattering.table import scaled_lookup
-from pbvol_cli.physics.phase import phase_eval
+from pbvol_cli.physics.phase import mean_cosine, phase_eval
 from pbvol_cli.physics.sampling import stratified_depth
 from pbvol_cli.pointbased.inverse_square import attenuated_inv_r2_ball
 from pbvol_cli.pointbased.volume_samples import ENTRY_N, ENTRY_Q, EXIT_N, EXIT_Q, IMAGE_CURVED, IMAGE_FLAT
@@ -59,9 +59,8 @@ def near_weight(r, split):
 
 @njit(inline="always", cache=True)
 def transport_share(kind, g):
-    """1 - mean cosine of the phase function: sigma_t' = sigma_a + this x sigma_s (Henyey-Greenstein and Schlick:
-    g; the others are treated as symmetric)."""
-    return 1.0 - g if kind == 1 or kind == 2 else 1.0
+    """1 - mean cosine of the phase function (physics.phase.mean_cosine): sigma_t' = sigma_a + this x sigma_s."""
+    return 1.0 - mean_cosine(kind, g)
 
 
 @njit(inline="always", cache=True)

@@ -1,4 +1,4 @@
-"""Phase functions: normalisation, mean cosine, and sampling against the pdf (chi-square)."""
+"""Phase functions: normalisation, mean cosine, and sampling against the pdf (chi-square); the truncated lobe."""
 
 import math
 
@@ -7,11 +7,18 @@ import pytest
 from numba import njit
 from scipy import integrate, stats
 
-from pbvol_cli.physics.phase import KINDS, phase_eval, phase_sample
+from pbvol_cli.physics.phase import (
+    KINDS,
+    TRUNCATION_COS,
+    mean_cosine,
+    phase_eval,
+    phase_sample,
+    truncated_share,
+)
 from pbvol_cli.physics.sampling import rand, seed_state
 
 CASES = [("isotropic", 0.0), ("hg", 0.0), ("hg", 0.9), ("hg", -0.5), ("schlick", 0.7), ("schlick", -0.3),
-         ("rayleigh", 0.0), ("mie_hazy", 0.0), ("mie_murky", 0.0)]
+         ("rayleigh", 0.0), ("mie_hazy", 0.0), ("mie_murky", 0.0), ("hg_truncated", 0.9), ("hg_truncated", 0.5)]
 
 
 @pytest.mark.parametrize("name,g", CASES)
@@ -25,6 +32,29 @@ def test_integrates_to_one(name, g):
 def test_hg_mean_cosine_is_g(g):
     val, _ = integrate.quad(lambda mu: 2 * math.pi * mu * phase_eval(KINDS["hg"], g, mu), -1, 1, limit=400)
     assert val == pytest.approx(g, abs=1e-7)
+
+
+@pytest.mark.parametrize("name,g", [(n, g) for n, g in CASES if n in ("isotropic", "hg", "rayleigh", "hg_truncated")])
+def test_mean_cosine(name, g):
+    """mean_cosine (the transport coefficient's) is the lobe's first moment (Schlick's k is only fitted to g, the Mie
+    mixtures' lobes are taken as symmetric)."""
+    k = KINDS[name]
+    val, _ = integrate.quad(lambda mu: 2 * math.pi * mu * phase_eval(k, g, mu), -1, 1, limit=400, epsabs=1e-12)
+    assert mean_cosine(k, g) == pytest.approx(val, abs=1e-9)
+
+
+@pytest.mark.parametrize("g", [0.3, 0.8, 0.9, 0.99])
+def test_truncated_lobe_is_henyey_greenstein_below_its_cap(g):
+    """hg_truncated x its share is Henyey-Greenstein itself at every cosine up to TRUNCATION_COS and that value beyond:
+    what the truncation takes out is only the peak above the cap, and the share is what is left."""
+    hg, tr = KINDS["hg"], KINDS["hg_truncated"]
+    share = truncated_share(g)
+    for mu in np.linspace(-1.0, 1.0, 401):
+        expected = phase_eval(hg, g, min(mu, TRUNCATION_COS))
+        assert share * phase_eval(tr, g, mu) == pytest.approx(expected, rel=1e-12)
+    peak, _ = integrate.quad(lambda mu: 2 * math.pi * (phase_eval(hg, g, mu) - phase_eval(hg, g, TRUNCATION_COS)),
+                             TRUNCATION_COS, 1.0, limit=400, epsabs=1e-12)
+    assert 1.0 - share == pytest.approx(peak, abs=1e-9)
 
 
 @njit(cache=True)

@@ -1,6 +1,7 @@
 """The point-based method's stages from the command line: cached light samples, component layers."""
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from conftest import medium_sphere_scene, write_scene
@@ -36,15 +37,18 @@ def test_place_samples_caches_and_render_writes_component_layers(tmp_path):
     assert bad.exit_code == 1 and "--components" in bad.stderr and "\n" not in bad.stderr.strip()
 
 
-def test_stages_cache_what_a_delta_eddington_render_reads(tmp_path):
-    """With [render.pbl] similarity = "delta-eddington", precompute-lut builds the transformed medium's tables and
-    place-samples places the transformed medium's samples: the render then reuses both."""
+@pytest.mark.parametrize("similarity,said", [("delta-eddington", ["(delta-Eddington)", "g 0.333333, hg)"]),
+                                             ("truncated", ["(truncated peak)", "g 0.5, hg_truncated)"])])
+def test_stages_cache_what_a_transformed_render_reads(tmp_path, similarity, said):
+    """With [render.pbl] similarity set, precompute-lut builds the transformed medium's tables (delta-Eddington: of
+    g / (1 + g), g = 0.5; truncated: of the capped lobe) and place-samples places the transformed medium's samples:
+    the render then reuses both."""
     path = write_scene(tmp_path, medium_sphere_scene(surface_samples=2000, segments_per_beam=4,
-                                                     similarity="delta-eddington"))
+                                                     similarity=similarity))
     cache = ["--cache-dir", str(tmp_path / "c")]
     r = runner.invoke(app, ["precompute-lut", str(path), *cache])
     assert r.exit_code == 0, r.output
-    assert "(delta-Eddington)" in r.stdout and "g 0.333333" in r.stdout  # g / (1 + g), g = 0.5
+    assert all(s in r.stdout for s in said), r.stdout
     assert runner.invoke(app, ["place-samples", str(path), *cache]).exit_code == 0
     staged = sorted(p.name for p in (tmp_path / "c").rglob("*.npz"))
     out = tmp_path / "o.exr"
