@@ -11,6 +11,9 @@ seed, then the mean time per render, the relMSE (mean, least and largest over th
 subtracted), error x time and the relMSE of the seeds' mean image over 8 x 8 blocks (noise falls there, a bias
 stays: an upper estimate of the variant's bias). The reference is benchmarks/pbl_speed.py's (two volpath halves,
 cached under --cache). pbl_ab.py compares noise without a reference; this compares error, bias included.
+Pass p of a render takes light-sample set seed + p: with --spp N, seeds fewer than N apart share sets (seeds 2, 3, 4
+at 8 passes share six of their eight), so their spread understates the light side's; take seeds N apart for
+independent renders.
 """
 
 from __future__ import annotations
