@@ -10,13 +10,18 @@ carried the same way as the light from the lights, as beams:
 1. boundary points x_j on the surfaces bounding the medium (area A_j, inward normal n_j): blue noise, and in a
    convex medium points shot from the sources in uniform directions, where the arriving light is peaked; the two
    are weighted by the balance heuristic (gather_points);
-2. from each, a cosine-sampled direction w into the medium; the radiance arriving at x_j from w, L_in, is the
-   camera estimator (single + double + multiple of the previous generation's samples) along that ray;
+2. from each, a direction w into the medium, drawn in proportion to cos x the boundary's reflectance toward the
+   outside (reflectance_tables; a share REFLECTION_MIX by cos alone); the radiance arriving at x_j from w, L_in, is
+   the camera estimator (single + double + multiple of the previous generation's samples) along that ray;
 3. that light is reflected specularly: a beam from x_j along the mirror direction, of power
-   pi F(w . n_j) L_in A_j (cosine sampling: integral of L F cos dw = pi E[L F]), cross-section A_j; one gather
-   ray per point is noisy (a volume sample close to the ray), so each point's reflected power is shared among its
-   neighbours within SHARING_RADIUS x their spacing (total kept; the beams' directions stay their own: the reflected
-   light's direction is decorrelated from its power over that distance, as the paper's diffuse value assumes);
+   pi F(w . n_j) L_in A_j / p(w) (p: w's density over the cosine density; integral of L F cos dw = pi E[L F / p]),
+   cross-section A_j; one gather ray per point is noisy (a volume sample close to the ray), so each point's
+   reflected power is shared among its neighbours within SHARING_RADIUS x their spacing (total kept; the beams'
+   directions stay their own: the reflected light's direction is decorrelated from its power over that distance,
+   as the paper's diffuse value assumes). Drawn by cos alone, the beams beyond the critical angle (F = 1: light
+   that stays in until it scatters) were 56 % of the beams behind eta 1.5 but carry over 90 % of the reflected
+   power, and the sharing gave the others (F = 0.04 near the normal: light that leaves at the next wall) the same:
+   a thin medium's trapped light was a third short (docs/pbl.md, section 8);
 4. the beams are cut into volume samples like the lights' (their own internal reflections followed), and give
    generation g + 1's samples, gathered in turn for the next generation;
 5. the generations after the last are a geometric tail: the last generation's power is scaled by 1 / (1 - r), r
@@ -35,7 +40,8 @@ import numpy as np
 from numba import njit, prange
 
 from pbvol_cli.geometry.intersect import closest_surface_hits
-from pbvol_cli.geometry.scene_build import DIELECTRIC, SPH_SURFACE, SURF_MEDIUM_IN, SURF_TYPE, BuiltScene
+from pbvol_cli.geometry.scene_build import (DIELECTRIC, SPH_SURFACE, SURF_ETA_IN, SURF_ETA_OUT, SURF_MEDIUM_IN,
+                                           SURF_TYPE, BuiltScene)
 from pbvol_cli.physics.fresnel import fresnel_dielectric
 from pbvol_cli.physics.sampling import cosine_around, rand, seed_state, uniform_sphere
 from pbvol_cli.pointbased.beams import Beams, beam_segments, layer_reflectance, slab_reflectance
@@ -160,9 +166,10 @@ def gather_points(bs: BuiltScene, caster, medium: int, count: int, seed: int, ge
 
 
 @njit(parallel=True, cache=True)
-def _reflected_beams(surfaces, medium, pos, nin, sid, w, L, area, eps, R2, bpos, bdir, bpow):
-    """Beam j: from x_j along the mirror image of the arriving light's direction (-w), power pi F L A_j (area[j];
-    F with the glass wall behind the boundary, if any: slab_reflectance)."""
+def _reflected_beams(surfaces, medium, pos, nin, sid, w, q, L, area, eps, R2, bpos, bdir, bpow):
+    """Beam j: from x_j along the mirror image of the arriving light's direction (-w), power pi F L A_j q_j
+    (area[j]; F with the glass wall behind the boundary, if any: slab_reflectance; q_j: 1 / w's density over the
+    cosine density)."""
     for j in prange(pos.shape[0]):
         s = sid[j]
         inside_is_interior = surfaces[s, SURF_MEDIUM_IN] == medium
@@ -173,18 +180,81 @@ def _reflected_beams(surfaces, medium, pos, nin, sid, w, L, area, eps, R2, bpos,
             # the light travels along -w; mirrored: -w + 2 (w . n) n, into the medium
             bdir[j, k] = -w[j, k] + 2.0 * c * nin[j, k]
             bpos[j, k] = pos[j, k] + eps * nin[j, k]
-            bpow[j, k] = math.pi * F * L[j, k] * area[j]
+            bpow[j, k] = math.pi * F * L[j, k] * area[j] * q[j]
+
+
+REFLECTION_MIX = 0.02  # the share of the gather directions drawn by cos alone (where the reflectance toward the
+# outside underestimates the boundary's, a glass wall's for one, they keep every direction sampled)
+REFLECTANCE_BINS = 1024  # bins in sin^2 of the angle to the normal of the reflectance tables
+MIN_MEAN_REFLECTANCE = 1e-3  # below this (an index-matched side) the directions are drawn by cos alone
+
+
+def reflectance_tables(bs: BuiltScene, medium: int, sid: np.ndarray):
+    """For the boundary points on the surfaces sid, the reflectance toward the outside by which their gather
+    directions are drawn: the Fresnel reflectance from the medium's side (its index) into vacuum, the law of total
+    internal reflection that a glass wall between keeps. Returns (each point's table (n,), the tables' values over
+    REFLECTANCE_BINS bins of u = sin^2 theta (m, K), their cumulative sums normalised (m, K + 1), their means
+    (m,): the hemispherical reflectance, cos-weighted)."""
+    surf = bs.surfaces
+    inside = surf[sid, SURF_MEDIUM_IN] == medium
+    n_med = np.where(inside, surf[sid, SURF_ETA_IN], surf[sid, SURF_ETA_OUT])
+    etas, which = np.unique(n_med, return_inverse=True)
+    K = REFLECTANCE_BINS
+    mu = np.sqrt(1.0 - (np.arange(K) + 0.5) / K)
+    f = np.array([[fresnel_dielectric(m, 1.0 / e)[0] for m in mu] for e in etas]).reshape(len(etas), K)
+    total = f.sum(axis=1)
+    cdf = np.concatenate([np.zeros((len(etas), 1)), np.cumsum(f, axis=1) / np.maximum(total, 1e-300)[:, None]],
+                         axis=1)
+    return which.astype(np.int64), f, cdf, total / K
 
 
 @njit(parallel=True, cache=True)
-def _gather_directions(nin, seed, stream, out, rng):
-    """A cosine-weighted direction into the medium from each boundary point (its own random stream, left in rng)."""
+def gather_directions(nin, table, f, cdf, fmean, mix, seed, stream, out, q, rng):
+    """A direction into the medium from each boundary point (its own random stream, left in rng): with
+    probability `mix` cosine-weighted, else by cos x its table's reflectance (reflectance_tables); q[j] is 1 / its
+    density over the cosine density."""
+    K = f.shape[1]
     for j in prange(nin.shape[0]):
         st = np.empty(1, np.uint64)
         st[0] = seed_state(seed, stream, j)
-        u1, u2 = rand(st, 0), rand(st, 0)
-        out[j, 0], out[j, 1], out[j, 2] = cosine_around(u1, u2, nin[j, 0], nin[j, 1], nin[j, 2])
+        u0, u1, u2 = rand(st, 0), rand(st, 0), rand(st, 0)
+        k = table[j]
+        m = mix if fmean[k] > MIN_MEAN_REFLECTANCE else 1.0
+        u = u1  # sin^2 theta: uniform under the cosine density
+        if u0 >= m:
+            lo, hi = 0, K  # the bin b with cdf[b] <= u1 < cdf[b + 1]
+            while hi - lo > 1:
+                mid = (lo + hi) // 2
+                if cdf[k, mid] <= u1:
+                    lo = mid
+                else:
+                    hi = mid
+            width = cdf[k, lo + 1] - cdf[k, lo]
+            u = (lo + ((u1 - cdf[k, lo]) / width if width > 0.0 else 0.5)) / K
+        b = min(int(u * K), K - 1)
+        q[j] = 1.0 / (m + (1.0 - m) * f[k, b] / fmean[k]) if m < 1.0 else 1.0
+        out[j, 0], out[j, 1], out[j, 2] = cosine_around(u, u2, nin[j, 0], nin[j, 1], nin[j, 2])
         rng[j] = st[0]
+
+
+def reflected_beams(bs: BuiltScene, caster, medium: int, pos, nin, sid, w, q, L, area, spacing: float):
+    """The beams the boundary points x_j (pos, inward normals nin, surface ids sid, area (scene units^2, one or per
+    point), minimum distance `spacing`) reflect of the radiance L (n, 3) arriving from the directions w (n, 3, drawn
+    by gather_directions, q its weights): each from x_j along the mirror image of -w, its power pi F L A_j q_j
+    shared among its neighbours (share_among_neighbours). Returns (positions, directions, powers, the powers' robust
+    total before the sharing spreads a spike over its neighbours)."""
+    n = len(pos)
+    bpos, bdir, bpow = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+    # the glass wall behind the boundary, seen by the light leaving along -w from just inside x_j
+    inner = pos + bs.eps * nin
+    t0, s0, ng0, ns0 = closest_surface_hits(caster, bs, inner, -w)
+    R2 = layer_reflectance(caster, bs, inner, -w, t0, s0, ng0, ns0)
+    _reflected_beams(bs.surfaces, medium, pos, nin, sid, w, q, L, np.broadcast_to(area, n).copy(), bs.eps, R2, bpos,
+                     bdir, bpow)
+    rob = robust_total(bpow)
+    shared = np.zeros_like(bpow)
+    share_among_neighbours(pos, bpow, SHARING_RADIUS * spacing, shared)
+    return bpos, bdir, shared, rob
 
 
 ROBUST_QUANTILE = 0.99  # the tail's ratio clips each boundary point's reflected power at this quantile
@@ -202,8 +272,9 @@ def robust_total(power: np.ndarray) -> np.ndarray:
 
 def arrival_bound(L: np.ndarray, area, scattered: np.ndarray) -> np.ndarray:
     """Per channel, the factor (<= 1) that keeps the flux the gather says arrives at the boundary from inside,
-    sum_j pi L_j A_j (cosine-sampled radiance L_j (n, 3) at points of area A_j: `area`, (n,) or one for all),
-    within the power the sources scattered (3,): scattered light is absorbed or reaches the boundary, so no more
+    sum_j pi L_j A_j (radiance L_j (n, 3) along a direction drawn by the cosine density, or weighted as if it were,
+    at points of area A_j: `area`, (n,) or one for all), within the power the sources scattered (3,): scattered
+    light is absorbed or reaches the boundary, so no more
     can arrive. The estimators break this bound where the table's images are poor, most near the boundary of an
     optically thick, high-albedo body (a marble sphere 270 mean free paths across: a generation's light arriving
     6-13x what it scattered), and a generation-to-generation ratio above 1 then grows without bound (docs/pbl.md)."""
@@ -232,8 +303,8 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
         n = len(pos)
         if n == 0:
             return None
-        w, rng = np.zeros((n, 3)), np.zeros(n, np.uint64)
-        _gather_directions(nin, seed, 0xB0 + 4 * g, w, rng)
+        w, q, rng = np.zeros((n, 3)), np.zeros(n), np.zeros(n, np.uint64)
+        gather_directions(nin, *reflectance_tables(bs, medium, sid), REFLECTION_MIX, seed, 0xB0 + 4 * g, w, q, rng)
         t, _, ng, _ = closest_surface_hits(caster, bs, pos + bs.eps * nin, w)
         ok = np.flatnonzero(np.isfinite(t))
         L = np.zeros((n, 3))
@@ -243,18 +314,8 @@ def bounced_samples(bs: BuiltScene, caster, pool, threads: int, medium: int, sou
             eval_segments(pool, threads, ok, pos + bs.eps * nin, w, np.ones((n, 3)), np.where(np.isfinite(t), t, 0.0),
                           rng.copy(), med, d.kernel, settings, out, np.zeros(n, np.int64), planes)
             L += out.sum(axis=1)
-        L *= arrival_bound(L, area, sum(d.scat.sum(axis=0) for d in sources))[None, :]
-        bpos, bdir, bpow = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
-        # the glass wall behind the boundary, seen by the light leaving along -w from just inside x_j
-        inner = pos + bs.eps * nin
-        t0, s0, ng0, ns0 = closest_surface_hits(caster, bs, inner, -w)
-        R2 = layer_reflectance(caster, bs, inner, -w, t0, s0, ng0, ns0)
-        _reflected_beams(bs.surfaces, medium, pos, nin, sid, w, L, np.broadcast_to(area, n).copy(), bs.eps, R2, bpos,
-                         bdir, bpow)
-        rob = robust_total(bpow)  # before the sharing spreads a spike over its neighbours
-        smoothed = np.zeros_like(bpow)
-        share_among_neighbours(pos, bpow, SHARING_RADIUS * spacing, smoothed)
-        bpow = smoothed
+        L *= arrival_bound(L * q[:, None], area, sum(d.scat.sum(axis=0) for d in sources))[None, :]
+        bpos, bdir, bpow, rob = reflected_beams(bs, caster, medium, pos, nin, sid, w, q, L, area, spacing)
         live = np.flatnonzero(bpow.max(axis=1) > 0)
         if len(live) == 0:
             break
