@@ -120,6 +120,27 @@ def phase_sample_cos(kind, g, u1):
     return 1.0 - 2.0 * u1  # isotropic half of the Mie mixtures; phase_sample picks the lobe
 
 
+PEAK_BISECTIONS = 48  # truncated_peak_cos's halvings of [TRUNCATION_COS, 1]: to 4e-16 in cos
+
+
+@njit(cache=True)
+def truncated_peak_cos(g, u):
+    """The cosine at u in [0, 1) of the forward peak that hg_truncated takes out of a Henyey-Greenstein lobe of
+    g > 0: the density 2 pi (hg(cos) - hg(TRUNCATION_COS)) / f on [TRUNCATION_COS, 1], f = 1 - truncated_share(g),
+    by inverting its distribution (increasing: bisection; no closed form)."""
+    low = _hg_cdf(g, TRUNCATION_COS)
+    flat = 2.0 * math.pi * _hg(g, TRUNCATION_COS)
+    target = u * (1.0 - truncated_share(g))
+    a, b = TRUNCATION_COS, 1.0
+    for _ in range(PEAK_BISECTIONS):
+        c = 0.5 * (a + b)
+        if _hg_cdf(g, c) - low - flat * (c - TRUNCATION_COS) < target:
+            a = c
+        else:
+            b = c
+    return 0.5 * (a + b)
+
+
 @njit(cache=True)
 def phase_sample(kind, g, dx, dy, dz, u1, u2, u3):
     """Sample an outgoing direction around the propagation direction d. Returns (wx, wy, wz, pdf)."""

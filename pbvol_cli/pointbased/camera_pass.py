@@ -35,8 +35,9 @@ from pbvol_cli.pointbased.caustics import caustic_map, irradiance
 from pbvol_cli.pointbased.diffuse_filter import DiffuseVertices
 from pbvol_cli.pointbased.gather import (LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_SINGLE, DeferredSingle, eval_segments,
                                          gather_settings, segment_planes)
+from pbvol_cli.pointbased.peak_deflections import draw_deflections, peak_rates
 from pbvol_cli.pointbased.radiance_cache import DeferredBins, TermShares, cache_settings
-from pbvol_cli.pointbased.volume_samples import PLANE_COLS, medium_params, scattered_share
+from pbvol_cli.pointbased.volume_samples import ENTRY_N, ENTRY_Q, PLANE_COLS, medium_params, scattered_share
 from pbvol_cli.render.camera import camera_rays_for
 from pbvol_cli.render.interfaces import dielectric_fresnel, incident_side, indices, medium_beyond, shadow_ray_length
 from pbvol_cli.render.sample_sums import SampleSums, layer_means
@@ -457,7 +458,8 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     # caustics from photons (caustics.py), in media the camera paths attenuate themselves (no entry or segment term)
     with_caustics = pbl.caustic_photons > 0 and entry is None and segment is None
     caustics_of = partial(caustic_map, bs, caster, round(pbl.caustic_photons * npix), pbl.caustic_radius,
-                          pixel_angle(bs), seed, max_depth=pbl.max_split_depth) if with_caustics else (lambda p: None)
+                          pixel_angle(bs), seed, max_depth=pbl.max_split_depth,
+                          deflect=pbl.peak_deflections) if with_caustics else (lambda p: None)
     caustics = caustics_of(first_pass)
     if pbl.surface_paths == 0 and pbl.pilot_paths > 0 and entry is None and segment is None:
         # (the pilot path traces the caustics: with the photons' smooth caustic the wax candle's first pass read
@@ -779,11 +781,20 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
     entered = np.zeros(n)  # eta beyond / eta before where a ray has just entered a medium (0: it has not)
     vertex = np.full(n, -1, np.int64)  # each ray's first diffuse vertex in vertices (-1: none yet, or no filter)
     travelled = np.zeros(n)  # the distance each ray's path has gone from the camera (a vertex's pixel footprint)
+    # the truncated peak's deflections (peak_deflections.py): each medium's rate, each path's deflections so far, and
+    # the entry plane (ENTRY_N .. ENTRY_Q) of a ray that starts at a deflection: its chain's (NaN: from n_start)
+    rates = peak_rates(bs.media) if pbl.peak_deflections else None
+    turns = np.zeros(n, np.int64)
+    entry_planes = np.full((n, ENTRY_Q + 1 - ENTRY_N), np.nan)
     while len(pos):
         t, surf, ng, ns = closest_surface_hits(caster, bs, pos, dirs)
         tl, li = np.empty(len(pos)), np.empty(len(pos), np.int64)
         light_hits(bs.lights, pos, dirs, t, tl, li, np.full(len(pos), -1, np.int64))
         tev = np.minimum(t, tl)
+        turned, d_turn, dir_turn = np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3))
+        if rates is not None:  # a deflection before the surface ends the segment there (its planes stay the surfaces')
+            turned, d_turn, dir_turn, advanced = draw_deflections(rates, bs.media, dirs, tev, medium, turns, rng)
+            rng[turned] = advanced
         inside = np.flatnonzero((medium >= 0) & np.isfinite(tev))
         # the boundary planes of the segments that evaluate the medium (the kernels read no other row)
         need = inside[evm[inside]]
@@ -792,6 +803,10 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
             contrib = np.zeros((len(pos), 4, 3))  # medium terms per ray: zero but in rows of need
             planes = np.zeros((len(pos), PLANE_COLS))
             planes[need] = segment_planes(pos[need], dirs[need], t[need], n_start[need], ng[need])
+            if rates is not None:
+                chained = need[np.isfinite(entry_planes[need, 0])]
+                planes[chained, ENTRY_N:ENTRY_Q + 1] = entry_planes[chained]
+        tev[turned] = d_turn
         for m in np.unique(medium[inside]):
             sub = inside[medium[inside] == m]
             lit, bounced = media_data.get(int(m), (None, None))
@@ -876,6 +891,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
         shadows = ShadowRays(np.empty((ks, 3)), np.empty((ks, 3)), np.empty(ks), np.empty((ks, 3)),
                              np.empty(ks, np.bool_))
         li = np.where(tl < t, li, -1)
+        li[turned], surf[turned] = -1, -1  # a deflected ray meets no surface (_interact: no child, no shadow ray)
         new_vertex = None
         travelled = travelled + np.where(np.isfinite(tev), tev, 0.0)
         if caustics is not None:
@@ -887,6 +903,13 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
         # is judged at that point)
         _interact(bs.surfaces, bs.lights, Rays(pos, dirs, beta, medium, depth, rng, state), Hits(tev, surf, ng, ns, li),
                   limits, emit, children, shadows)
+        if len(turned):  # instead: one child in the reflected slot, turned where the segment ended, no light met
+            emit[turned] = 0.0
+            j = 2 * turned
+            children.pos[j] = pos[turned] + tev[turned, None] * dirs[turned]
+            children.dir[j], children.beta[j], children.medium[j] = dir_turn, beta[turned], medium[turned]
+            children.ok[j], children.state[j] = True, state[turned]
+            ng[turned] = np.nan  # (the child's start: no surface)
         sidx = np.flatnonzero(shadows.ok)
         if len(sidx) and segment is not None:  # through null boundaries and the media (heterogeneous ones too)
             tr = segment.shadow(caster, shadows.pos[sidx], shadows.dir[sidx], shadows.dist[sidx],
@@ -905,6 +928,18 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
             parent = slots >> 1
             vertex = np.where(vertex[parent] >= 0, vertex[parent], new_vertex[parent])
         travelled = travelled[slots >> 1]
+        if rates is not None:  # a deflection is no interaction: the child keeps its parent's depth and entry plane
+            from_turn = np.zeros(len(parent_dirs), np.bool_)
+            from_turn[turned] = True
+            from_turn = from_turn[slots >> 1] & (slots % 2 == 0)
+            depth[from_turn] -= 1
+            turns = turns[slots >> 1] + from_turn
+            entry_planes = np.full((len(slots), ENTRY_Q + 1 - ENTRY_N), np.nan)
+            if planes is not None:
+                had = np.zeros(len(parent_dirs), np.bool_)
+                had[need] = True
+                keep = from_turn & had[slots >> 1]
+                entry_planes[keep] = planes[(slots >> 1)[keep], ENTRY_N:ENTRY_Q + 1]
         if entry is not None:
             entered = _entered(bs.surfaces, slots, slots >> 1, parent_surf, parent_dirs, ng, parent_medium, medium)
     return path_surface

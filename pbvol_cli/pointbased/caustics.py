@@ -33,6 +33,7 @@ from pbvol_cli.physics.fresnel import reflect
 from pbvol_cli.physics.lights import (LIGHT_AREA, LIGHT_E1, LIGHT_E2, LIGHT_P0, LIGHT_RADIUS, LIGHT_RGB,
                                      LIGHT_TWO_SIDED, LIGHT_TYPE, QUAD, SPHERE, quad_normal)
 from pbvol_cli.physics.sampling import around, rand, seed_state, uniform_sphere
+from pbvol_cli.pointbased.peak_deflections import MAX_TURNS, draw_deflections, peak_rates
 from pbvol_cli.render.interfaces import dielectric_choice, incident_side, medium_beyond
 
 CAUSTIC_STREAM = 0xCA057  # the photons' random streams (seed_state's stream, plus the pass index)
@@ -216,10 +217,13 @@ def _photon_step_one(i, surfaces, media, pos, dirs, power, medium, smooth, alive
     smooth[i] += 1
 
 
-def trace_photons(bs: BuiltScene, caster, n: int, seed: int, pass_index: int, max_depth: int):
+def trace_photons(bs: BuiltScene, caster, n: int, seed: int, pass_index: int, max_depth: int,
+                  deflect: bool = True):
     """n photons of pass pass_index traced to the diffuse surfaces they reach through smooth interfaces (at most
-    max_depth of them). Returns (pos (m, 3), power (m, 3) W, normal (m, 3): facing the side they arrived from), the
-    stored photons only; None where the scene has no smooth surface or no emitter."""
+    max_depth of them), turned by the truncated peak's deflections in a truncated medium where deflect
+    (peak_deflections.py: photons carry the light paths with no wider scattering, as the camera paths do). Returns
+    (pos (m, 3), power (m, 3) W, normal (m, 3): facing the side they arrived from), the stored photons only; None
+    where the scene has no smooth surface or no emitter."""
     target = caustic_target(bs)
     if target is None or n <= 0:
         return None
@@ -234,20 +238,36 @@ def trace_photons(bs: BuiltScene, caster, n: int, seed: int, pass_index: int, ma
     _emit(bs.lights, cdf, probs, centre, radius, n, seed, CAUSTIC_STREAM + pass_index, bs.eps, pos, dirs, power, alive,
           skip, rng)
     medium, smooth = np.full(n, -1, np.int64), np.zeros(n, np.int64)
+    rates = peak_rates(bs.media) if deflect else None
+    turns = np.zeros(n, np.int64)
     out_pos, out_power, out_normal = [], [], []
-    for _ in range(max_depth + 1):
+    for _ in range(max_depth + 1 + (MAX_TURNS if rates is not None else 0)):  # (a deflection is no interaction)
         live = np.flatnonzero(alive)
         if len(live) == 0:
             break
-        pos, dirs, power, medium, smooth, rng, skip = (pos[live], dirs[live], power[live], medium[live], smooth[live],
-                                                      rng[live], skip[live])
+        pos, dirs, power, medium, smooth, rng, skip, turns = (pos[live], dirs[live], power[live], medium[live],
+                                                              smooth[live], rng[live], skip[live], turns[live])
         alive = np.ones(len(live), np.bool_)
         t, surf, ng, ns = closest_surface_hits(caster, bs, pos, dirs)
         tl, li = np.empty(len(pos)), np.empty(len(pos), np.int64)
         light_hits(bs.lights, pos, dirs, t, tl, li, skip)
+        turned = np.zeros(0, np.int64)
+        if rates is not None:  # turned before what they would meet: moved there, no interaction this step
+            turned, d, new_dir, advanced = draw_deflections(rates, bs.media, dirs, np.minimum(t, tl), medium, turns,
+                                                            rng)
+            rng[turned] = advanced
+            alive[turned] = False
         stored, s_pos, s_normal = np.empty(len(pos), np.bool_), np.empty((len(pos), 3)), np.empty((len(pos), 3))
         _photon_step(bs.surfaces, bs.media, pos, dirs, power, medium, smooth, alive, rng, t, surf, ng, ns, tl, bs.eps,
                      stored, s_pos, s_normal)
+        if len(turned):
+            m = medium[turned]
+            sigma_t = bs.media[m, MED_SIGMA_A:MED_SIGMA_A + 3] + bs.media[m, MED_SIGMA_S:MED_SIGMA_S + 3]
+            power[turned] *= np.exp(-sigma_t * d[:, None])
+            pos[turned] += d[:, None] * dirs[turned]
+            dirs[turned] = new_dir
+            turns[turned] += 1
+            alive[turned] = True
         out_pos.append(s_pos[stored])
         out_power.append(power[stored])
         out_normal.append(s_normal[stored])
@@ -370,10 +390,11 @@ def irradiance(cmap: CausticMap, points: np.ndarray, facing: np.ndarray, distanc
 
 
 def caustic_map(bs: BuiltScene, caster, photons: int, radius_px: float, pixel_angle: float, seed: int,
-                pass_index: int, max_depth: int) -> CausticMap | None:
-    """Pass pass_index's caustic map: `photons` photons (at least MIN_PHOTONS) traced (trace_photons) in a grid,
-    thinned where they crowd (build_map), None where the scene has no caustic path."""
+                pass_index: int, max_depth: int, deflect: bool = True) -> CausticMap | None:
+    """Pass pass_index's caustic map: `photons` photons (at least MIN_PHOTONS) traced (trace_photons, deflect: the
+    truncated peak's deflections) in a grid, thinned where they crowd (build_map), None where the scene has no
+    caustic path."""
     scale = radius_scale(radius_px, pixel_angle, pass_index)
-    return build_map(trace_photons(bs, caster, max(photons, MIN_PHOTONS), seed, pass_index, max_depth), scale,
+    return build_map(trace_photons(bs, caster, max(photons, MIN_PHOTONS), seed, pass_index, max_depth, deflect), scale,
                      bs.camera[CAM_POS:CAM_POS + 3], MAX_RADIUS * bs.extent,
                      np.random.default_rng([seed, pass_index, CAUSTIC_STREAM]))

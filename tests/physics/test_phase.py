@@ -1,4 +1,5 @@
-"""Phase functions: normalisation, mean cosine, and sampling against the pdf (chi-square); the truncated lobe."""
+"""Phase functions: normalisation, mean cosine, and sampling against the pdf (chi-square); the truncated lobe and
+the peak it takes out."""
 
 import math
 
@@ -13,6 +14,7 @@ from pbvol_cli.physics.phase import (
     mean_cosine,
     phase_eval,
     phase_sample,
+    truncated_peak_cos,
     truncated_share,
 )
 from pbvol_cli.physics.sampling import rand, seed_state
@@ -55,6 +57,27 @@ def test_truncated_lobe_is_henyey_greenstein_below_its_cap(g):
     peak, _ = integrate.quad(lambda mu: 2 * math.pi * (phase_eval(hg, g, mu) - phase_eval(hg, g, TRUNCATION_COS)),
                              TRUNCATION_COS, 1.0, limit=400, epsabs=1e-12)
     assert 1.0 - share == pytest.approx(peak, abs=1e-9)
+
+
+@pytest.mark.parametrize("g", [0.05, 0.5, 0.9, 0.99])
+def test_the_truncated_peak_is_drawn_by_its_own_distribution(g):
+    """truncated_peak_cos inverts the peak's distribution: 2 pi (hg - hg(cap)) / f on [TRUNCATION_COS, 1]. Drawn at
+    evenly spaced u, the share of draws below each of ten cosines equals the peak's integral up to it (to 1/n: the
+    draws are the distribution's quantiles), and the mean is the peak's mean cosine."""
+    hg = KINDS["hg"]
+    f = 1.0 - truncated_share(g)
+    n = 20000
+    cos = np.array([truncated_peak_cos(g, (i + 0.5) / n) for i in range(n)])
+    assert np.all(np.diff(cos) >= 0.0) and cos[0] >= TRUNCATION_COS and cos[-1] <= 1.0
+
+    def density(mu):
+        return 2 * math.pi * (phase_eval(hg, g, mu) - phase_eval(hg, g, TRUNCATION_COS)) / f
+
+    for c in np.linspace(TRUNCATION_COS, 1.0, 12)[1:-1]:
+        below, _ = integrate.quad(density, TRUNCATION_COS, c, limit=400, epsabs=1e-13)
+        assert np.mean(cos < c) == pytest.approx(below, abs=2.0 / n)
+    mean, _ = integrate.quad(lambda mu: mu * density(mu), TRUNCATION_COS, 1.0, limit=400, epsabs=1e-13)
+    assert cos.mean() == pytest.approx(mean, abs=1e-5)
 
 
 @njit(cache=True)
