@@ -439,10 +439,10 @@ class PblSettings(Strict):
     peak_deflections: Bool = Field(False, description="with similarity = \"truncated\": camera paths and caustic "
                                    "photons inside such a medium are turned by the truncated peak's small deflections "
                                    "(drawn from the peak at its rate, f sigma_s, the channels' least) instead of going "
-                                   "straight. Most of the truncation's bias goes where sigma_s is grey (the bumpy "
-                                   "sphere at eight passes: 8 x 8-block error 0.0006 -> 0.00013, relMSE 0.00151 -> "
-                                   "0.00098) at 2.4 times the pass's time; worth it for long renders, where that bias "
-                                   "is most of the error (docs/pbl.md, section 2)")
+                                   "straight: most of the truncation's bias goes where sigma_s is grey (the bumpy "
+                                   "sphere at eight passes: 8 x 8-block error 0.00055 -> 0.00013, relMSE 0.00150 -> "
+                                   "0.00123, for 1.35 times the time). Worth it for long renders, where that bias is "
+                                   "most of the error (docs/pbl.md, section 2)")
     cut_size: Int = Field(8, ge=0, le=64, description="octree refinements per point for double and multiple scattering "
                           "(stochastic light cut: more = less noise, more time)")
     clamp: Num = Field(0.02, ge=0, description="smallest radius a source's 1/r^2 is averaged over (double "

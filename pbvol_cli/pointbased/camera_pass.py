@@ -37,7 +37,7 @@ from pbvol_cli.pointbased.gather import (LAYER_DOUBLE, LAYER_MULTIPLE, LAYER_SIN
                                          gather_settings, segment_planes)
 from pbvol_cli.pointbased.peak_deflections import draw_deflections, peak_rates
 from pbvol_cli.pointbased.radiance_cache import DeferredBins, TermShares, cache_settings
-from pbvol_cli.pointbased.volume_samples import ENTRY_N, ENTRY_Q, PLANE_COLS, medium_params, scattered_share
+from pbvol_cli.pointbased.volume_samples import PLANE_COLS, medium_params, scattered_share
 from pbvol_cli.render.camera import camera_rays_for
 from pbvol_cli.render.interfaces import dielectric_fresnel, incident_side, indices, medium_beyond, shadow_ray_length
 from pbvol_cli.render.sample_sums import SampleSums, layer_means
@@ -782,35 +782,38 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
     vertex = np.full(n, -1, np.int64)  # each ray's first diffuse vertex in vertices (-1: none yet, or no filter)
     travelled = np.zeros(n)  # the distance each ray's path has gone from the camera (a vertex's pixel footprint)
     # the truncated peak's deflections (peak_deflections.py): each medium's rate, each path's deflections so far, and
-    # the entry plane (ENTRY_N .. ENTRY_Q) of a ray that starts at a deflection: its chain's (NaN: from n_start)
+    # the rays that start at a deflection, whose segment's medium terms were gathered straight on (see below)
     rates = peak_rates(bs.media) if pbl.peak_deflections else None
     turns = np.zeros(n, np.int64)
-    entry_planes = np.full((n, ENTRY_Q + 1 - ENTRY_N), np.nan)
+    gathered = np.zeros(n, np.bool_)
     while len(pos):
         t, surf, ng, ns = closest_surface_hits(caster, bs, pos, dirs)
         tl, li = np.empty(len(pos)), np.empty(len(pos), np.int64)
         light_hits(bs.lights, pos, dirs, t, tl, li, np.full(len(pos), -1, np.int64))
         tev = np.minimum(t, tl)
         turned, d_turn, dir_turn = np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3))
-        if rates is not None:  # a deflection before the surface ends the segment there (its planes stay the surfaces')
+        if rates is not None:  # a deflection before the surface ends the path's segment there
             turned, d_turn, dir_turn, advanced = draw_deflections(rates, bs.media, dirs, tev, medium, turns, rng)
             rng[turned] = advanced
+        # The medium's terms are gathered straight on to the surface ahead, as without the deflections, and not
+        # again along the pieces after a deflection: their light (the camera side up to a wider scattering) changed
+        # little with the deflections, the light the path finds beyond the medium most (docs/pbl.md, section 2),
+        # and along the pieces it cost 2.4 times the pass
+        length = tev.copy()  # what each ray travels: to its deflection where it turns
+        length[turned] = d_turn
         inside = np.flatnonzero((medium >= 0) & np.isfinite(tev))
+        evaluates = evm & ~gathered if rates is not None else evm
         # the boundary planes of the segments that evaluate the medium (the kernels read no other row)
-        need = inside[evm[inside]]
+        need = inside[evaluates[inside]]
         planes = contrib = None
         if len(need):
             contrib = np.zeros((len(pos), 4, 3))  # medium terms per ray: zero but in rows of need
             planes = np.zeros((len(pos), PLANE_COLS))
             planes[need] = segment_planes(pos[need], dirs[need], t[need], n_start[need], ng[need])
-            if rates is not None:
-                chained = need[np.isfinite(entry_planes[need, 0])]
-                planes[chained, ENTRY_N:ENTRY_Q + 1] = entry_planes[chained]
-        tev[turned] = d_turn
         for m in np.unique(medium[inside]):
             sub = inside[medium[inside] == m]
             lit, bounced = media_data.get(int(m), (None, None))
-            ms = sub[evm[sub]]  # the paths that evaluate the medium in this pass
+            ms = sub[evaluates[sub]]  # the paths that evaluate the medium in this pass
             med = lit.medium if lit is not None else medium_params(bs.media, int(m))  # (lit's: with its faces)
             if lit is not None and lit.count and len(ms):
                 # weak branches (internal reflections) are evaluated with probability beta_max / roulette,
@@ -869,7 +872,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                         layers[name][:, ch] += np.bincount(pixel[sub], weights=value[:, ch], minlength=npix)
                 beta[sub] *= transmittance
             else:
-                _attenuate(beta, sub, tev, sum(bs.medium_sigmas(m)))
+                _attenuate(beta, sub, length, sum(bs.medium_sigmas(m)))
         if bins is not None and bins.full():
             bins.flush(pool, threads)
         if len(need) and dshare is not None:  # the smooth terms after a diffuse bounce, for the next shares
@@ -891,6 +894,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
         shadows = ShadowRays(np.empty((ks, 3)), np.empty((ks, 3)), np.empty(ks), np.empty((ks, 3)),
                              np.empty(ks, np.bool_))
         li = np.where(tl < t, li, -1)
+        tev = length
         li[turned], surf[turned] = -1, -1  # a deflected ray meets no surface (_interact: no child, no shadow ray)
         new_vertex = None
         travelled = travelled + np.where(np.isfinite(tev), tev, 0.0)
@@ -928,18 +932,13 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
             parent = slots >> 1
             vertex = np.where(vertex[parent] >= 0, vertex[parent], new_vertex[parent])
         travelled = travelled[slots >> 1]
-        if rates is not None:  # a deflection is no interaction: the child keeps its parent's depth and entry plane
+        if rates is not None:  # a deflection is no interaction: the child keeps its parent's depth
             from_turn = np.zeros(len(parent_dirs), np.bool_)
             from_turn[turned] = True
             from_turn = from_turn[slots >> 1] & (slots % 2 == 0)
             depth[from_turn] -= 1
             turns = turns[slots >> 1] + from_turn
-            entry_planes = np.full((len(slots), ENTRY_Q + 1 - ENTRY_N), np.nan)
-            if planes is not None:
-                had = np.zeros(len(parent_dirs), np.bool_)
-                had[need] = True
-                keep = from_turn & had[slots >> 1]
-                entry_planes[keep] = planes[(slots >> 1)[keep], ENTRY_N:ENTRY_Q + 1]
+            gathered = from_turn
         if entry is not None:
             entered = _entered(bs.surfaces, slots, slots >> 1, parent_surf, parent_dirs, ng, parent_medium, medium)
     return path_surface

@@ -239,14 +239,15 @@ def trace_photons(bs: BuiltScene, caster, n: int, seed: int, pass_index: int, ma
           skip, rng)
     medium, smooth = np.full(n, -1, np.int64), np.zeros(n, np.int64)
     rates = peak_rates(bs.media) if deflect else None
-    turns = np.zeros(n, np.int64)
+    turns, steps = np.zeros(n, np.int64), np.zeros(n, np.int64)  # each photon's deflections and interactions
     out_pos, out_power, out_normal = [], [], []
     for _ in range(max_depth + 1 + (MAX_TURNS if rates is not None else 0)):  # (a deflection is no interaction)
-        live = np.flatnonzero(alive)
+        live = np.flatnonzero(alive & (steps <= max_depth))
         if len(live) == 0:
             break
-        pos, dirs, power, medium, smooth, rng, skip, turns = (pos[live], dirs[live], power[live], medium[live],
-                                                              smooth[live], rng[live], skip[live], turns[live])
+        pos, dirs, power, medium, smooth, rng, skip, turns, steps = (
+            pos[live], dirs[live], power[live], medium[live], smooth[live], rng[live], skip[live], turns[live],
+            steps[live])
         alive = np.ones(len(live), np.bool_)
         t, surf, ng, ns = closest_surface_hits(caster, bs, pos, dirs)
         tl, li = np.empty(len(pos)), np.empty(len(pos), np.int64)
@@ -260,6 +261,7 @@ def trace_photons(bs: BuiltScene, caster, n: int, seed: int, pass_index: int, ma
         stored, s_pos, s_normal = np.empty(len(pos), np.bool_), np.empty((len(pos), 3)), np.empty((len(pos), 3))
         _photon_step(bs.surfaces, bs.media, pos, dirs, power, medium, smooth, alive, rng, t, surf, ng, ns, tl, bs.eps,
                      stored, s_pos, s_normal)
+        steps += 1
         if len(turned):
             m = medium[turned]
             sigma_t = bs.media[m, MED_SIGMA_A:MED_SIGMA_A + 3] + bs.media[m, MED_SIGMA_S:MED_SIGMA_S + 3]
@@ -267,6 +269,7 @@ def trace_photons(bs: BuiltScene, caster, n: int, seed: int, pass_index: int, ma
             pos[turned] += d[:, None] * dirs[turned]
             dirs[turned] = new_dir
             turns[turned] += 1
+            steps[turned] -= 1
             alive[turned] = True
         out_pos.append(s_pos[stored])
         out_power.append(power[stored])

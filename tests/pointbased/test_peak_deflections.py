@@ -36,7 +36,7 @@ def test_the_rate_is_the_peaks_share_of_the_given_medium_s_scattering():
     assert peak_rates(_row("hg", g, [0.1] * 3, [1.0] * 3)[None]) is None  # the medium as given: no truncation
 
 
-def _rays(n, medium=0, turns=0, tmax=np.inf):
+def _rays(n, medium=0, turns=0, tmax=1e30):
     dirs = np.tile([0.0, 0.6, 0.8], (n, 1))
     rng = np.array([seed_state(7, 3, i) for i in range(n)], np.uint64)
     return dirs, np.full(n, tmax), np.full(n, medium, np.int64), np.full(n, turns, np.int64), rng
@@ -71,9 +71,11 @@ def test_deflections_come_at_the_rate_with_the_peak_s_cosines():
 
 
 def test_no_deflection_outside_a_truncated_medium_or_past_the_path_s_share():
+    """None outside a medium, in a medium that is not truncated, past MAX_TURNS, or on a ray that meets nothing (it
+    left its medium through a crack of the mesh)."""
     media = np.stack([truncated(_row("hg", 0.9, [0.01] * 3, [0.2] * 3)[None])[0], _row("isotropic", 0.0, [0.1] * 3,
                                                                                     [1.0] * 3)])
     rates = peak_rates(media)
-    for medium, turns in ((-1, 0), (1, 0), (0, MAX_TURNS)):
-        dirs, tmax, med, tn, rng = _rays(1000, medium=medium, turns=turns)
+    for medium, turns, tmax_ in ((-1, 0, 1e30), (1, 0, 1e30), (0, MAX_TURNS, 1e30), (0, 0, np.inf)):
+        dirs, tmax, med, tn, rng = _rays(1000, medium=medium, turns=turns, tmax=tmax_)
         assert len(draw_deflections(rates, media, dirs, tmax, med, tn, rng)[0]) == 0
