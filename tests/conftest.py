@@ -9,13 +9,24 @@ import numpy as np
 import tomli_w
 
 from pbvol_cli import config as C
-from pbvol_cli.geometry.scene_build import CAM_FORWARD, CAM_POS, CAM_RIGHT, CAM_UP, build_scene
+from pbvol_cli.geometry.scene_build import (CAM_FORWARD, CAM_POS, CAM_RIGHT, CAM_UP, MED_COLS, MED_G, MED_MAJORANT,
+                                           MED_PHASE, MED_SIGMA_A, MED_SIGMA_S, build_scene)
+from pbvol_cli.physics.phase import KINDS
 
 
 def write_scene(tmp_path: Path, scene: dict, name: str = "scene.toml") -> Path:
     p = Path(tmp_path) / name
     p.write_bytes(tomli_w.dumps(scene).encode())
     return p
+
+
+def medium_row(phase: str, g: float, sigma_a, sigma_s) -> np.ndarray:
+    """One homogeneous medium's row of the media table (scene_build's MED_* columns; coefficients in 1/unit)."""
+    row = np.zeros(MED_COLS)
+    row[MED_SIGMA_A:MED_SIGMA_A + 3], row[MED_SIGMA_S:MED_SIGMA_S + 3] = sigma_a, sigma_s
+    row[MED_PHASE], row[MED_G] = KINDS[phase], g
+    row[MED_MAJORANT] = np.max(np.add(sigma_a, sigma_s))
+    return row
 
 
 def camera(res=(16, 16), position=(0.0, 0.0, 4.0), fov=40.0):

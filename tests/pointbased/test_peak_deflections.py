@@ -7,19 +7,11 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from pbvol_cli.geometry.scene_build import MED_COLS, MED_G, MED_MAJORANT, MED_PHASE, MED_SIGMA_A, MED_SIGMA_S
+from conftest import medium_row
 from pbvol_cli.physics.phase import KINDS, TRUNCATION_COS, phase_eval, truncated_share
 from pbvol_cli.physics.sampling import seed_state
 from pbvol_cli.pointbased.peak_deflections import MAX_TURNS, draw_deflections, peak_rates
 from pbvol_cli.pointbased.similarity import truncated
-
-
-def _row(phase: str, g: float, sigma_a, sigma_s) -> np.ndarray:
-    row = np.zeros(MED_COLS)
-    row[MED_SIGMA_A:MED_SIGMA_A + 3], row[MED_SIGMA_S:MED_SIGMA_S + 3] = sigma_a, sigma_s
-    row[MED_PHASE], row[MED_G] = KINDS[phase], g
-    row[MED_MAJORANT] = np.max(np.add(sigma_a, sigma_s))
-    return row
 
 
 def test_the_rate_is_the_peaks_share_of_the_given_medium_s_scattering():
@@ -27,13 +19,13 @@ def test_the_rate_is_the_peaks_share_of_the_given_medium_s_scattering():
     leaves alone do not deflect, and a table without a truncated medium has no rates."""
     g = 0.9
     f = 1.0 - truncated_share(g)
-    media = truncated(np.stack([_row("hg", g, [0.01, 0.1, 0.25], [0.21, 0.21, 0.21]),
-                                _row("hg", g, [0.01, 0.1, 0.25], [0.3, 0.04, 0.5]),
-                                _row("isotropic", 0.0, [0.1] * 3, [1.0] * 3)]))
+    media = truncated(np.stack([medium_row("hg", g, [0.01, 0.1, 0.25], [0.21, 0.21, 0.21]),
+                                medium_row("hg", g, [0.01, 0.1, 0.25], [0.3, 0.04, 0.5]),
+                                medium_row("isotropic", 0.0, [0.1] * 3, [1.0] * 3)]))
     rates = peak_rates(media)
     np.testing.assert_allclose(rates, [f * 0.21, f * 0.04, 0.0], rtol=1e-12)
     assert peak_rates(media[2:]) is None
-    assert peak_rates(_row("hg", g, [0.1] * 3, [1.0] * 3)[None]) is None  # the medium as given: no truncation
+    assert peak_rates(medium_row("hg", g, [0.1] * 3, [1.0] * 3)[None]) is None  # the medium as given: no truncation
 
 
 def _rays(n, medium=0, turns=0, tmax=1e30):
@@ -47,7 +39,7 @@ def test_deflections_come_at_the_rate_with_the_peak_s_cosines():
     1 - e^(-rate tmax)), the new directions unit vectors at the peak's cosines from the old (its mean cosine), and
     each turned ray's random state moves on (its next draws differ)."""
     g = 0.9
-    media = truncated(_row("hg", g, [0.01, 0.1, 0.25], [0.21, 0.21, 0.21])[None])
+    media = truncated(medium_row("hg", g, [0.01, 0.1, 0.25], [0.21, 0.21, 0.21])[None])
     rates = peak_rates(media)
     n = 100_000
     dirs, tmax, medium, turns, rng = _rays(n)
@@ -73,7 +65,7 @@ def test_deflections_come_at_the_rate_with_the_peak_s_cosines():
 def test_no_deflection_outside_a_truncated_medium_or_past_the_path_s_share():
     """None outside a medium, in a medium that is not truncated, past MAX_TURNS, or on a ray that meets nothing (it
     left its medium through a crack of the mesh)."""
-    media = np.stack([truncated(_row("hg", 0.9, [0.01] * 3, [0.2] * 3)[None])[0], _row("isotropic", 0.0, [0.1] * 3,
+    media = np.stack([truncated(medium_row("hg", 0.9, [0.01] * 3, [0.2] * 3)[None])[0], medium_row("isotropic", 0.0, [0.1] * 3,
                                                                                     [1.0] * 3)])
     rates = peak_rates(media)
     for medium, turns, tmax_ in ((-1, 0, 1e30), (1, 0, 1e30), (0, MAX_TURNS, 1e30), (0, 0, np.inf)):

@@ -5,23 +5,16 @@ alone."""
 import numpy as np
 import pytest
 
-from pbvol_cli.geometry.scene_build import MED_COLS, MED_G, MED_MAJORANT, MED_PHASE, MED_SIGMA_A, MED_SIGMA_S
+from conftest import medium_row
+from pbvol_cli.geometry.scene_build import MED_G, MED_MAJORANT, MED_PHASE, MED_SIGMA_A, MED_SIGMA_S
 from pbvol_cli.physics.phase import KINDS, TRUNCATION_COS, phase_eval
 from pbvol_cli.pointbased.similarity import TRUNCATED_MIN_G, delta_eddington, truncated
-
-
-def _row(phase: str, g: float, sigma_a, sigma_s) -> np.ndarray:
-    row = np.zeros(MED_COLS)
-    row[MED_SIGMA_A:MED_SIGMA_A + 3], row[MED_SIGMA_S:MED_SIGMA_S + 3] = sigma_a, sigma_s
-    row[MED_PHASE], row[MED_G] = KINDS[phase], g
-    row[MED_MAJORANT] = np.max(np.add(sigma_a, sigma_s))
-    return row
 
 
 @pytest.mark.parametrize("g", [0.3, 0.7, 0.9, 0.99])
 def test_keeps_absorption_transport_and_mean_cosine(g):
     sigma_a, sigma_s = np.array([0.01, 0.1, 0.25]), np.array([0.21, 0.21, 0.21])
-    out = delta_eddington(_row("hg", g, sigma_a, sigma_s)[None])[0]
+    out = delta_eddington(medium_row("hg", g, sigma_a, sigma_s)[None])[0]
     sa, ss, gs = out[MED_SIGMA_A:MED_SIGMA_A + 3], out[MED_SIGMA_S:MED_SIGMA_S + 3], out[MED_G]
     f = g * g
     np.testing.assert_array_equal(sa, sigma_a)
@@ -33,9 +26,9 @@ def test_keeps_absorption_transport_and_mean_cosine(g):
 
 
 def test_leaves_other_media_and_the_input_alone():
-    media = np.stack([_row("isotropic", 0.0, [0.1] * 3, [1.0] * 3), _row("hg", 0.0, [0.1] * 3, [1.0] * 3),
-                      _row("hg", -0.5, [0.1] * 3, [1.0] * 3), _row("schlick", 0.8, [0.1] * 3, [1.0] * 3),
-                      _row("hg", 0.9, [0.1] * 3, [1.0] * 3)])
+    media = np.stack([medium_row("isotropic", 0.0, [0.1] * 3, [1.0] * 3), medium_row("hg", 0.0, [0.1] * 3, [1.0] * 3),
+                      medium_row("hg", -0.5, [0.1] * 3, [1.0] * 3), medium_row("schlick", 0.8, [0.1] * 3, [1.0] * 3),
+                      medium_row("hg", 0.9, [0.1] * 3, [1.0] * 3)])
     before = media.copy()
     out = delta_eddington(media)
     np.testing.assert_array_equal(media, before)
@@ -48,7 +41,7 @@ def test_truncation_keeps_absorption_and_the_scattering_beyond_its_cone(g):
     """sigma_s* p*(cos) equals sigma_s p(cos) wherever cos <= TRUNCATION_COS: outside the cone the truncated medium
     scatters exactly as the medium given; inside it, its forward peak goes on as unscattered light."""
     sigma_a, sigma_s = np.array([0.01, 0.1, 0.25]), np.array([0.21, 0.3, 0.5])
-    out = truncated(_row("hg", g, sigma_a, sigma_s)[None])[0]
+    out = truncated(medium_row("hg", g, sigma_a, sigma_s)[None])[0]
     sa, ss = out[MED_SIGMA_A:MED_SIGMA_A + 3], out[MED_SIGMA_S:MED_SIGMA_S + 3]
     np.testing.assert_array_equal(sa, sigma_a)
     assert out[MED_PHASE] == KINDS["hg_truncated"] and out[MED_G] == g
@@ -60,9 +53,9 @@ def test_truncation_keeps_absorption_and_the_scattering_beyond_its_cone(g):
 
 
 def test_truncation_leaves_other_media_and_the_input_alone():
-    media = np.stack([_row("isotropic", 0.0, [0.1] * 3, [1.0] * 3), _row("hg", 0.0, [0.1] * 3, [1.0] * 3),
-                      _row("hg", -0.5, [0.1] * 3, [1.0] * 3), _row("schlick", 0.8, [0.1] * 3, [1.0] * 3),
-                      _row("hg", 0.5 * TRUNCATED_MIN_G, [0.1] * 3, [1.0] * 3), _row("hg", 0.9, [0.1] * 3, [1.0] * 3)])
+    media = np.stack([medium_row("isotropic", 0.0, [0.1] * 3, [1.0] * 3), medium_row("hg", 0.0, [0.1] * 3, [1.0] * 3),
+                      medium_row("hg", -0.5, [0.1] * 3, [1.0] * 3), medium_row("schlick", 0.8, [0.1] * 3, [1.0] * 3),
+                      medium_row("hg", 0.5 * TRUNCATED_MIN_G, [0.1] * 3, [1.0] * 3), medium_row("hg", 0.9, [0.1] * 3, [1.0] * 3)])
     before = media.copy()
     out = truncated(media)
     np.testing.assert_array_equal(media, before)
