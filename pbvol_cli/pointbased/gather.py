@@ -16,33 +16,36 @@ import numpy as np
 from numba import njit
 
 from pbvol_cli.physics.sampling import points_on_segment, rand, stratified_depth
-from pbvol_cli.pointbased.light_cut import double_multiple
+from pbvol_cli.pointbased.light_cut import MULTIPLE_CUT_SHARE, double_multiple
 from pbvol_cli.pointbased.radiance_cache import CacheSettings, scattered_points, shared_terms
 from pbvol_cli.pointbased.single_scattering import single_scattering_at_points, single_scattering
 from pbvol_cli.pointbased.volume_samples import ENTRY_N, ENTRY_Q, EXIT_N, EXIT_Q, PLANE_COLS, Query, nearer_plane
 
 GatherSettings = namedtuple("GatherSettings", ["kmax", "cut_size", "clamp", "single", "double", "multiple",
-                                               "kmax_scattered", "kmax_diffuse"])
+                                               "kmax_scattered", "kmax_diffuse", "cut_size_diffuse"])
 GatherSettings.__doc__ = """How a segment is evaluated: kmax points for single scattering, kmax_scattered for double
 and multiple (smooth along a ray), kmax_diffuse random points for every term after a diffuse bounce; the light cut's
-cut_size refinements and its clamp (scene units); which terms (single, double, multiple: bools)."""
+cut_size refinements (cut_size_diffuse after a diffuse bounce) and its clamp (scene units); which terms (single,
+double, multiple: bools)."""
 LAYER_SINGLE, LAYER_DOUBLE, LAYER_MULTIPLE = 0, 1, 2  # out[ray, layer, channel]
 
 
 def gather_settings(pbl, terms=("single", "double", "multiple")) -> GatherSettings:
     """The camera paths' settings from a scene's [render.pbl] (config.PblSettings), for the given terms."""
     return GatherSettings(pbl.kmax, pbl.cut_size, pbl.clamp, "single" in terms, "double" in terms,
-                          "multiple" in terms, pbl.kmax_scattered, pbl.kmax_diffuse)
+                          "multiple" in terms, pbl.kmax_scattered, pbl.kmax_diffuse, pbl.cut_size_diffuse)
 
 
 @njit(cache=True)
 def _segment(i, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes):
     """The medium's light along ray i over [0, tseg[i]], times beta[i], into out[i, layer, channel]. A ray after a
     diffuse bounce (diffuse[i] > 0) takes settings.kmax_diffuse random points for every term (sec. 3.6: averaged
-    over the bounces). planes[i]: the boundary's tangent planes where the segment starts and ends
+    over the bounces), with a light cut of settings.cut_size_diffuse refinements: its one random point and cosine-
+    drawn direction are noisier than a coarser cut (docs/pbl.md, section 9). planes[i]: the boundary's tangent planes where the segment starts and ends
     (segment_planes), the nearer of which is each point's for the multiple term's image."""
     sig_a, sig_s = med.sigma_a, med.sigma_s
     kmax, k2 = settings.kmax, settings.kmax_scattered
+    cut = settings.cut_size_diffuse if diffuse[i] > 0 else settings.cut_size
     do_s, do_d, do_m = settings.single, settings.double, settings.multiple
     dmax = tseg[i]
     s = min(sig_a[0] + sig_s[0], min(sig_a[1] + sig_s[1], sig_a[2] + sig_s[2]))
@@ -70,8 +73,8 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, pla
                 e = nearer_plane(planes, i, px, py, pz)
                 for c in range(4):
                     pplane[c] = planes[i, e + c]
-                double_multiple(vs, med, Query(px, py, pz, wx, wy, wz, pplane), settings.cut_size, settings.clamp,
-                                do_d, do_m, o, o3, rng, i)
+                double_multiple(vs, med, Query(px, py, pz, wx, wy, wz, pplane), cut, settings.clamp,
+                                do_d, do_m, o, o3, rng, i, settings.cut_size // MULTIPLE_CUT_SHARE)
             for c in range(3):
                 w = beta[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * d) / (pdf * n)
                 if comp == 0:

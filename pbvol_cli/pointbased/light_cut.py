@@ -309,12 +309,13 @@ def _near_field(vs, med, q, rclamp, out_d, out_m):
 
 
 @njit(cache=True)
-def double_multiple(vs, med, q, cut_size, rclamp, do_double, do_multiple, out_d, out_m, rng, ri):
+def double_multiple(vs, med, q, cut_size, rclamp, do_double, do_multiple, out_d, out_m, rng, ri, ms_cut=-1):
     """Adds double (out_d) and multiple (out_m) scattering at q (Query) from the volume samples vs (VolumeSamples)
     of med (Medium), by the stochastic light cut of the module docstring; rclamp: the smallest extent of a
     source's ball (scene units). With vs.r_near > 0 double scattering's kernel is split (sources.near_weight):
-    its part within r_near of P is summed over every sample there, the cut takes the rest. rng[ri] is the random
-    state. Returns the number of samples evaluated (the cost)."""
+    its part within r_near of P is summed over every sample there, the cut takes the rest. Multiple scattering
+    takes the cut after ms_cut refinements (-1: cut_size / MULTIPLE_CUT_SHARE; double's cut is then at least
+    that). rng[ri] is the random state. Returns the number of samples evaluated (the cost)."""
     tree = vs.tree
     order, lo, hi, power = tree[0], tree[1], tree[2], tree[5]
     first_child, n_children, start, end = tree[6], tree[7], tree[8], tree[9]
@@ -322,7 +323,9 @@ def double_multiple(vs, med, q, cut_size, rclamp, do_double, do_multiple, out_d,
         return 0
     sig_a, sig_s = med.sigma_a, med.sigma_s
     st_min = min(sig_a[0] + sig_s[0], min(sig_a[1] + sig_s[1], sig_a[2] + sig_s[2]))
-    cap = min(CUT_CAP, 8 * cut_size + 64)
+    if ms_cut < 0:
+        ms_cut = cut_size // MULTIPLE_CUT_SHARE
+    cap = min(CUT_CAP, 8 * max(cut_size, ms_cut) + 64)
     node_of = np.empty(cap, np.int64)
     key = np.empty(cap)
     heap = np.empty(cap, np.int64)
@@ -331,7 +334,6 @@ def double_multiple(vs, med, q, cut_size, rclamp, do_double, do_multiple, out_d,
     key[0] = 0.0
     hn = _heap_push(heap, 0, key, 0)
     n_slot, n_free, n_eval, n_refined = 1, 0, 0, 0
-    ms_cut = cut_size // MULTIPLE_CUT_SHARE
     ms_pending = do_multiple
     r_near = vs.r_near
     split = -r_near if do_double and r_near > 0.0 else 0.0
@@ -342,7 +344,7 @@ def double_multiple(vs, med, q, cut_size, rclamp, do_double, do_multiple, out_d,
             n_eval += _cut_estimate(heap, hn, node_of, vs, med, q, rclamp, as_runtime(False), as_runtime(True),
                                     out_d, out_m, rng, ri, 0.0)
             ms_pending = False
-        if n_refined >= cut_size or not (do_double or ms_pending):
+        if (n_refined >= cut_size or not do_double) and not ms_pending:
             break
         e = heap[0]
         nd = node_of[e]

@@ -128,7 +128,7 @@ def test_double_plus_bounced_single_matches_volpath_order_2(tmp_path):
     (0.93..1.03, tests/pointbased/test_passes.py) widened by 4 standard errors of both estimates."""
     bs = build(tmp_path, _sphere())
     tabs = [empty_table().render_args()] * 3
-    gather = GatherSettings(4, 8, 0.02, True, False, False, 1, 1)  # the light arriving at the boundary: single only
+    gather = GatherSettings(4, 8, 0.02, True, False, False, 1, 1, 8)  # the light arriving at the boundary: single only
 
     def media_for_pass(p):
         ls = place_light_samples(bs, 10000, 16, 8, 8, 100 + p, 2)

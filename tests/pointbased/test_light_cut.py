@@ -59,7 +59,9 @@ def test_stochastic_light_cut_is_unbiased(spread, r_near):
 def test_multiple_scattering_cut_is_unbiased_with_sources_around_the_point():
     """The multiple term's small cut (its representatives drawn by importance toward P, as double scattering's)
     averages to the exhaustive sum over every source (4 standard errors over 3000 estimates) for a cloud of
-    sources around P, some within a tenth of a mean free path of it, where drawing by power alone made spikes."""
+    sources around P, some within a tenth of a mean free path of it, where drawing by power alone made spikes. Its
+    cut is the one after ms_cut refinements, however far double scattering's is refined (the same estimate, bit for
+    bit, with double's cut at 8, 2 or 0)."""
     lay = Layout(extent=10.0, n_rho=16, n_z=32, n_theta=9, n_phi=9, kill_radius=20.0)
     table, _ = build_table(0.95, 0.3, 1, TableSettings(particles=20000, layout=lay, sh_order=8))
     tabs = (table.render_args(),) * 3
@@ -90,6 +92,13 @@ def test_multiple_scattering_cut_is_unbiased_with_sources_around_the_point():
     mean, se = runs.mean(0), runs.std(0) / np.sqrt(len(runs))
     assert np.all(runs.std(0) > 0)  # the cut is stochastic
     assert np.all(np.abs(mean - exact) < 4 * se), (mean, exact, se)
+    # the multiple term's cut is set by ms_cut alone (8 // MULTIPLE_CUT_SHARE by default), whatever double's
+    for cut, ms_cut in ((8, -1), (2, 2), (0, 2)):
+        om, st = np.zeros(3), np.array([11], np.uint64)
+        double_multiple(vs, med, q, cut, 0.02, True, True, np.zeros(3), om, st, 0, ms_cut)
+        if cut == 8:
+            reference = om
+        assert np.array_equal(om, reference), (cut, ms_cut)
 
 
 def test_a_long_segment_near_the_point_is_drawn_as_often_as_it_weighs():

@@ -181,7 +181,7 @@ def _double_along_chords(sample_set, cell, lateral, runs, pool, toward=1.0):
     evaluations per run)."""
     cache = CacheSettings(cell, lateral, 8, False) if cell > 0 else None
     return _terms_along_chords(sample_set, cache, runs, pool, toward,
-                               GatherSettings(1, 8, 0.02, False, True, False, 1, 1))
+                               GatherSettings(1, 8, 0.02, False, True, False, 1, 1, 8))
 
 
 def _terms_along_chords(sample_set, cache, runs, pool, toward, settings):
@@ -285,7 +285,7 @@ def test_the_bounced_lights_coarser_bins_blur_it_by_a_bounded_share(tmp_path):
     bs = build(tmp_path, scene)
     tabs = [empty_table().render_args()] * 3
     lit = SampleSet(place_light_samples(bs, 2000, 8, 4, 8, 1), 0, bs.media, tabs, 2.0)
-    gather = GatherSettings(1, 8, 0.02, True, True, True, 1, 1)
+    gather = GatherSettings(1, 8, 0.02, True, True, True, 1, 1, 8)
     caster = TriangleCaster(bs.vertices, bs.faces, 2)
     with ThreadPoolExecutor(2) as pool:
         try:
