@@ -446,9 +446,10 @@ class PblSettings(Strict):
                                    "section 2)")
     cut_size: Int = Field(8, ge=0, le=64, description="octree refinements per point for double and multiple scattering "
                           "(stochastic light cut: more = less noise, more time)")
-    cut_size_diffuse: Int = Field(2, ge=0, le=64, description="cut_size at the camera paths' points after a diffuse "
-                                  "bounce, whose one random point and cosine-drawn direction are noisier than a "
-                                  "coarser cut; the multiple term keeps cut_size's (the bumpy sphere at eight passes: "
+    cut_size_diffuse: Int = Field(2, ge=0, le=64, description="double scattering's cut_size at the camera paths' "
+                                  "points after a diffuse bounce, whose spread comes from their random depth and "
+                                  "cosine-drawn direction more than from the cut; the multiple term keeps "
+                                  "cut_size's (the bumpy sphere at eight passes: "
                                   "2 against 8, a fifth less time, relMSE 0.00159 against 0.00150; docs/pbl.md, "
                                   "section 9)")
     clamp: Num = Field(0.02, ge=0, description="smallest radius a source's 1/r^2 is averaged over (double "

@@ -40,9 +40,10 @@ def gather_settings(pbl, terms=("single", "double", "multiple")) -> GatherSettin
 def _segment(i, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, planes):
     """The medium's light along ray i over [0, tseg[i]], times beta[i], into out[i, layer, channel]. A ray after a
     diffuse bounce (diffuse[i] > 0) takes settings.kmax_diffuse random points for every term (sec. 3.6: averaged
-    over the bounces), with a light cut of settings.cut_size_diffuse refinements: its one random point and cosine-
-    drawn direction are noisier than a coarser cut (docs/pbl.md, section 9). planes[i]: the boundary's tangent planes where the segment starts and ends
-    (segment_planes), the nearer of which is each point's for the multiple term's image."""
+    over the bounces), its double scattering with a light cut of settings.cut_size_diffuse refinements: such a
+    point's spread comes from its random depth and cosine-drawn direction more than from the cut (docs/pbl.md,
+    section 9). planes[i]: the boundary's tangent planes where the segment starts and ends (segment_planes), the
+    nearer of which is each point's for the multiple term's image."""
     sig_a, sig_s = med.sigma_a, med.sigma_s
     kmax, k2 = settings.kmax, settings.kmax_scattered
     cut = settings.cut_size_diffuse if diffuse[i] > 0 else settings.cut_size
