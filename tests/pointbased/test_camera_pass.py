@@ -249,17 +249,24 @@ def test_diffuse_share_measures_the_second_moment_of_what_the_rays_would_add_unw
     assert first.rays == 1 and first.second_moment == 0.0
 
 
+def _water_sphere_on_a_floor():
+    """_scene's medium sphere behind an eta 1.33 boundary on a diffuse floor, seen from above: many camera rays
+    enter it after a bounce off the floor."""
+    scene = medium_sphere_scene(surface_samples=800, segments_per_beam=4, bounce_samples=64)
+    scene["camera"] = {**camera((16, 16), position=(0, 2.0, 3.0), fov=50), "look_at": [0.0, -0.4, 0.0]}
+    scene["shapes"][0].update(interface="dielectric", eta=1.33)
+    scene["shapes"].append({"type": "quad", "center": [0.0, -1.0, 0.0], "size": [6.0, 6.0], "interface": "diffuse",
+                            "albedo": 0.8})
+    return scene
+
+
 def test_diffuse_shares_keep_every_smooth_layers_mean_in_a_render(tmp_path, monkeypatch):
     """The test sphere on a diffuse floor, the rays after a bounce off the floor evaluating the smooth terms on
     half of them (weighted 2) against all of them, six seeds each: the double, multiple and bounced layers' means
     agree within 4 standard errors, and the rays did play (the share is forced: the rule's own wants 3 passes)."""
     import pbvol_cli.pointbased.gather as gather
 
-    scene = medium_sphere_scene(surface_samples=800, segments_per_beam=4, bounce_samples=64)
-    scene["camera"] = {**camera((16, 16), position=(0, 2.0, 3.0), fov=50), "look_at": [0.0, -0.4, 0.0]}
-    scene["shapes"][0].update(interface="dielectric", eta=1.33)
-    scene["shapes"].append({"type": "quad", "center": [0.0, -1.0, 0.0], "size": [6.0, 6.0], "interface": "diffuse",
-                            "albedo": 0.8})
+    scene = _water_sphere_on_a_floor()
     played = []
     after = gather._after_diffuse
 
@@ -285,11 +292,7 @@ def test_a_coarser_cut_after_a_diffuse_bounce_keeps_every_smooth_layers_mean_in_
     rendered with no refinement there and with 8, six seeds each, gives other images (the setting acts) whose
     double, multiple and bounced layers' means agree within 4 standard errors (the light cut is unbiased whatever
     its size)."""
-    scene = medium_sphere_scene(surface_samples=800, segments_per_beam=4, bounce_samples=64)
-    scene["camera"] = {**camera((16, 16), position=(0, 2.0, 3.0), fov=50), "look_at": [0.0, -0.4, 0.0]}
-    scene["shapes"][0].update(interface="dielectric", eta=1.33)
-    scene["shapes"].append({"type": "quad", "center": [0.0, -1.0, 0.0], "size": [6.0, 6.0], "interface": "diffuse",
-                            "albedo": 0.8})
+    scene = _water_sphere_on_a_floor()
     runs = {}
     for cut in (0, 8):
         scene["render"]["pbl"]["cut_size_diffuse"] = cut
