@@ -444,6 +444,13 @@ class PblSettings(Strict):
                                    "0.00123, for 1.35 times the time; a first pass noisier, 0.0122 against 0.0077). "
                                    "Worth it for long renders, where that bias is most of the error (docs/pbl.md, "
                                    "section 2)")
+    peak_deflections_from: Int = Field(0, ge=0, le=1_000_000, description="with peak_deflections: the first pass "
+                                       "(from 0, in the scene's sequence of passes) that takes the deflections; the "
+                                       "passes before it go straight, cheaper and less noisy, and the deflected "
+                                       "passes after them bring the truncation's bias down as they add up (the bumpy "
+                                       "sphere sets 8: its first eight passes as without the deflections, sixteen "
+                                       "at 1.1 times volpath's time to equal error instead of 1.8; docs/pbl.md, "
+                                       "section 2)")
     cut_size: Int = Field(8, ge=0, le=64, description="octree refinements per point for double and multiple scattering "
                           "(stochastic light cut: more = less noise, more time)")
     cut_size_diffuse: Int = Field(2, ge=0, le=64, description="double scattering's cut_size at the camera paths' "

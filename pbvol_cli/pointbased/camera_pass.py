@@ -457,15 +457,17 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
     pilot_den = None  # the first pass's measure of the rays after a diffuse bounce (the pilot's image)
     # caustics from photons (caustics.py), in media the camera paths attenuate themselves (no entry or segment term)
     with_caustics = pbl.caustic_photons > 0 and entry is None and segment is None
-    caustics_of = partial(caustic_map, bs, caster, round(pbl.caustic_photons * npix), pbl.caustic_radius,
-                          pixel_angle(bs), seed, max_depth=pbl.max_split_depth,
-                          deflect=pbl.peak_deflections) if with_caustics else (lambda p: None)
+    caustics_of = (lambda p: caustic_map(bs, caster, round(pbl.caustic_photons * npix), pbl.caustic_radius,
+                                         pixel_angle(bs), seed, p, max_depth=pbl.max_split_depth,
+                                         deflect=_pass_settings(pbl, p).peak_deflections)) \
+        if with_caustics else (lambda p: None)
     caustics = caustics_of(first_pass)
     if pbl.surface_paths == 0 and pbl.pilot_paths > 0 and entry is None and segment is None:
         # (the pilot path traces the caustics: with the photons' smooth caustic the wax candle's first pass read
         # relMSE 0.014 over seeds 2-12 against 0.012 with this one, measured alike; docs/pbl.md, "The candle's
         # first pass under a pilot that sees the caustics")
-        pilot = _pilot(bs, caster, pool, threads, seed, npix, W, pbl, settings, settings_b)
+        pilot = _pilot(bs, caster, pool, threads, seed, npix, W, _pass_settings(pbl, first_pass), settings,
+                       settings_b)
         first_k, stats.pilot_surface, pilot_den = pilot.counts, pilot.surface_variance, pilot.image ** 2 + 1e-2
     for p in range(first_pass, first_pass + spp):
         if time_limit is not None and passes > 0 and time.perf_counter() - t0 > time_limit:
@@ -486,6 +488,7 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         diffuse = DiffuseShare(share, image_so_far ** 2 + 1e-2 if image_so_far is not None else pilot_den)
         media_data = media_for_pass(p)
         caustics = caustics if p == first_pass else caustics_of(p)
+        pbl_p = _pass_settings(pbl, p)
         entry_p = entry.for_pass(p) if entry is not None else None
         segment_p = segment.for_pass(p, caster) if segment is not None else None
         # which of the pixel's k paths evaluates the medium in this pass (k = 1: every path)
@@ -521,9 +524,9 @@ def render_pbl(bs: BuiltScene, media_for_pass, spp: int, seed: int, pbl, threads
         for c0, c1 in batch_bounds(per_pass, int(evm.sum()), chunk, surface_chunk):
             part = slice(c0, c1)
             path_surface = _trace_batch(bs, caster, pool, threads, media_data, seed, done + c0, pixels[part],
-                                        samples[part], evm[part], k[pixels[part]], npix, settings, settings_b, pbl,
-                                        acc, single, entry_p, segment_p, term_shares, diffuse, bins, vertices, single_v,
-                                        caustics)
+                                        samples[part], evm[part], k[pixels[part]], npix, settings, settings_b,
+                                        pbl_p, acc, single, entry_p, segment_p, term_shares, diffuse, bins, vertices,
+                                        single_v, caustics)
             if single.full() or part.stop == per_pass:
                 single.flush(pool, threads, acc["single"], npix)
             if vertices is not None and (single_v.full() or part.stop == per_pass):
@@ -574,6 +577,13 @@ def _flush_single_at_vertices(single_v, vertices, pool, threads):
     light = np.zeros((vertices.count, len(COMPONENTS), 3))
     light[:, LAYER_SINGLE] = layer
     vertices.accumulate(np.arange(vertices.count), light)
+
+
+def _pass_settings(pbl, p: int):
+    """pbl (config.PblSettings) as pass p takes it: without the peak's deflections before peak_deflections_from."""
+    if pbl.peak_deflections and p < pbl.peak_deflections_from:
+        return pbl.model_copy(update={"peak_deflections": False})
+    return pbl
 
 
 def _pilot(bs, caster, pool, threads, seed: int, npix: int, width: int, pbl, settings, settings_b) -> Pilot:

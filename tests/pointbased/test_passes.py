@@ -242,3 +242,25 @@ def test_the_peak_s_deflections_are_reproducible_and_need_a_truncated_medium(tmp
     np.testing.assert_array_equal(turned, render(similarity="truncated", peak_deflections=True))
     assert not np.array_equal(turned, render(similarity="truncated"))
     np.testing.assert_array_equal(render(peak_deflections=True), render())
+
+
+def test_the_peak_s_deflections_start_at_their_pass(tmp_path):
+    """peak_deflections_from: the passes before it go straight. A two-pass render of the truncated sphere with the
+    deflections from pass 0 is the one with the deflections throughout, from pass 2 the one without them, bit for
+    bit; from pass 1 it is neither (a floor under the sphere: paths turned in either pass meet it elsewhere)."""
+    scene = medium_sphere_scene(surface_samples=500, segments_per_beam=2, bounce_samples=64)
+    scene["camera"]["resolution"] = [8, 8]
+    scene["shapes"].append({"type": "quad", "center": [0.0, -1.0, 0.0], "size": [6.0, 6.0], "interface": "diffuse",
+                            "albedo": 0.8})
+
+    def render(**pbl):
+        sc = dict(scene, render=dict(scene["render"], pbl=dict(scene["render"]["pbl"], similarity="truncated", **pbl)))
+        render_scene(write_scene(tmp_path, sc), tmp_path / "o.exr", RenderOptions(method="pbl", spp=2, seed=3,
+                                                                                  cache_dir=tmp_path, quiet=True))
+        return read_exr(tmp_path / "o.exr")[0]
+
+    straight, turned = render(), render(peak_deflections=True)
+    np.testing.assert_array_equal(render(peak_deflections=True, peak_deflections_from=0), turned)
+    np.testing.assert_array_equal(render(peak_deflections=True, peak_deflections_from=2), straight)
+    mixed = render(peak_deflections=True, peak_deflections_from=1)
+    assert not np.array_equal(mixed, straight) and not np.array_equal(mixed, turned)
