@@ -111,7 +111,8 @@ class MSTable:
             B = lobes.sh_at(self.order, *np.meshgrid(tc, pc, indexing="ij"))
             out[sh] = np.maximum(self.coef[self.leaf_slot[sh]].astype(np.float64) @ B.T, 0.0)
         if (~sh).any():
-            out[~sh] = lobes.dequantise_all(self.qlobe, self.qmax)[self.leaf_slot[~sh]]
+            rows = np.flatnonzero(~sh)
+            lobes.dequantise_rows(self.qlobe, self.qmax, self.leaf_slot[rows].astype(np.int64), rows, out)
         return out
 
     def render_args(self):

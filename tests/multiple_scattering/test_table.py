@@ -162,6 +162,24 @@ def test_render_form_equals_the_compact_form_at_centres(small_table):
                                                                                            abs=1e-30)
 
 
+def test_lobes_decoded_by_look_up_equal_each_codes_exponential():
+    """dequantise_all and dequantise_rows (the renderer's form, written in place) give, for every code and a
+    spread of maxima, the exponential of each code evaluated anew (bit for bit) and dequantise's value (to
+    rounding: a scalar exp), code 0 zero; dequantise_rows writes the rows asked and nothing elsewhere."""
+    rng = np.random.default_rng(3)
+    q = np.vstack([np.arange(256, dtype=np.uint8), rng.integers(0, 256, (5, 256)).astype(np.uint8)])
+    vmax = np.array([1.0, 3.5e-7, 2.0e4, 0.0, 0.37, 1e30], np.float32)
+    want = np.where(q == 0, 0.0, vmax[:, None] * np.exp((q.astype(np.float64) - 255.0) * lobes._Q_STEP))
+    assert np.array_equal(lobes.dequantise_all(q, vmax), want)
+    scalar = np.array([[lobes.dequantise(int(c), float(v)) for c in row] for row, v in zip(q, vmax)])
+    assert np.allclose(want, scalar, rtol=1e-14, atol=0.0)
+    assert np.all(want[q == 0] == 0.0) and want[0, 255] == 1.0
+    out = np.full((8, 256), -1.0, np.float32)
+    lobes.dequantise_rows(q, vmax, np.array([4, 0, 2], np.int64), np.array([1, 5, 6], np.int64), out)
+    assert np.array_equal(out[[1, 5, 6]], want[[4, 0, 2]].astype(np.float32))
+    assert np.all(out[[0, 2, 3, 4, 7]] == -1.0)
+
+
 def test_compact_form_is_close_to_the_dense_table(small_table):
     table, _ = small_table
     assert table.metrics["err_compact_vs_dense_99"] < 0.05
