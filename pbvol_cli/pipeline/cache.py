@@ -18,6 +18,7 @@ import os
 import sys
 import time
 import uuid
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -75,17 +76,43 @@ KEY_FIELD, CHECKSUM_FIELD = "entry_key", "entry_checksum"  # stored beside an en
 STALE_TEMP_S = 3600.0  # a temporary file this old was left by a killed run (a live writer's is seconds old)
 
 
+CRC_PREFIX = "crc32:"  # an entry's checksum: "crc32:" and 8 hex digits; older entries hold 64 hex digits (SHA-256)
+
+
 def checksum(arrays: dict) -> str:
-    """SHA-256 of the arrays' names, dtypes, shapes and bytes, in name order."""
+    """CRC-32 of the arrays' names, dtypes, shapes and bytes, in name order, as "crc32:xxxxxxxx". It guards
+    against damage, not against tampering: three times faster than SHA-256, whose 22 ms of the oil sphere's 46-MB
+    light samples were 2 % of its warm pass (docs/pbl.md, section 12)."""
+    crc = 0
+    for name, data in _checked_bytes(arrays):
+        crc = zlib.crc32(data, zlib.crc32(name, crc))
+    return f"{CRC_PREFIX}{crc:08x}"
+
+
+def _sha256_checksum(arrays: dict) -> str:
+    """The checksum of entries written before CRC-32 (SHA-256 of the same bytes, hex): still read."""
     h = hashlib.sha256()
+    for name, data in _checked_bytes(arrays):
+        h.update(name)
+        h.update(data)
+    return h.hexdigest()
+
+
+def _checked_bytes(arrays: dict):
+    """(header, bytes) of each array in name order: the header its name, dtype and shape."""
     for name in sorted(arrays):
         a = np.ascontiguousarray(arrays[name])
-        h.update(f"{name}:{a.dtype.str}:{a.shape}".encode())
+        header = f"{name}:{a.dtype.str}:{a.shape}".encode()
         try:  # the array's bytes as they lie (tobytes copied 180 MB of light samples first)
-            h.update(memoryview(a).cast("B"))
+            yield header, memoryview(a).cast("B")
         except (TypeError, ValueError):  # (a 0-d array or a dtype a buffer cannot show: the same bytes, copied)
-            h.update(a.tobytes())
-    return h.hexdigest()
+            yield header, a.tobytes()
+
+
+def checksum_matches(stored: str, arrays: dict) -> bool:
+    """Whether the arrays have the checksum stored beside them (either kind)."""
+    stored = str(stored)
+    return stored == (checksum(arrays) if stored.startswith(CRC_PREFIX) else _sha256_checksum(arrays))
 
 
 def save_npz_atomic(path: Path, compress: bool = True, **arrays) -> None:
@@ -219,7 +246,7 @@ def _load(path: Path, required: tuple[str, ...]) -> tuple[dict | None, str | Non
         return None, f"holds the entry {str(key)!r}, not this one"
     if any(k not in data for k in required):
         return None, "incomplete"
-    if str(check) != checksum(data):
+    if not checksum_matches(check, data):
         return None, "altered or damaged (checksum mismatch)"
     if any(np.issubdtype(a.dtype, np.floating) and np.isnan(a).any() for a in data.values()):
         return None, "holds NaN"

@@ -156,3 +156,24 @@ def test_light_samples_are_stored_uncompressed(tmp_path):
     r = get_light_samples(build_scene(scene, path), scene.render.pbl, 1, tmp_path / "c", 1)
     with zipfile.ZipFile(r.path) as z:
         assert {i.compress_type for i in z.infolist()} == {zipfile.ZIP_STORED}
+
+
+def test_entries_stamped_with_sha256_are_still_read_and_still_checked(tmp_path, capsys):
+    """New entries carry a CRC-32 ("crc32:" and 8 hex digits); an entry written with the former SHA-256 stamp is
+    reused as it is, and rebuilt when its arrays were altered under that stamp."""
+    path = tmp_path / "entry_legacy.npz"
+    builds = []
+    _get(tmp_path / "entry_new.npz", builds)
+    with np.load(tmp_path / "entry_new.npz") as z:
+        stamp = str(z[cache_module.CHECKSUM_FIELD])
+    assert stamp.startswith("crc32:") and len(stamp) == 14
+    values = np.array([1.0, 2.0, 3.0])
+    legacy = cache_module._sha256_checksum({"values": values})
+    assert len(legacy) == 64
+    np.savez(path, values=values, **{cache_module.KEY_FIELD: np.array(path.name),
+                                      cache_module.CHECKSUM_FIELD: np.array(legacy)})
+    entry, reused = _get(path, builds)
+    assert reused and len(builds) == 1 and capsys.readouterr().err == ""
+    _rewrite(path, values=np.array([9.0, 2.0, 3.0]))
+    entry, reused = _get(path, builds)
+    assert not reused and entry.values[0] == 1.0 and "checksum mismatch" in capsys.readouterr().err
