@@ -80,11 +80,14 @@ def test_a_killed_workers_shard_runs_again(tmp_path, client):
     def kill_a_busy_worker():
         deadline = time.time() + 60
         while time.time() < deadline and not killed:
-            busy = [(w, tasks) for w, tasks in client.processing().items() if tasks and w in pids]
+            busy = [w for w, tasks in client.processing().items() if tasks and w in pids]
             if busy:
-                time.sleep(0.3)  # well into its shard
-                os.kill(pids[busy[0][0]], signal.SIGKILL)
-                killed.extend(busy[0][1])
+                time.sleep(0.05)  # into its shard (one takes a few tenths of a second)
+                # the shards it holds now (one shorter than the wait is done, and is not run again)
+                tasks = client.processing().get(busy[0], ())
+                if tasks:
+                    os.kill(pids[busy[0]], signal.SIGKILL)
+                    killed.extend(tasks)
             time.sleep(0.05)
 
     t = threading.Thread(target=kill_a_busy_worker)
