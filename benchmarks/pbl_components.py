@@ -2,7 +2,8 @@
 """Each point-based component against the path tracer restricted to the same number of scattering events.
 
     .venv/bin/python benchmarks/pbl_components.py [--scenes a,b] [--resolution 48] [--pbl-spp 8]
-                                                 [--ref-spp 1024] [--bands 0] [--threads 2] [--cache DIR]
+                                                 [--ref-spp 1024] [--bands 0] [--as-rendered] [--threads 2]
+                                                 [--cache DIR]
 
 For each scene: one pbl render (its layers single, double, multiple, bounced) and volpath --orders 1, 2 and 3+,
 each as two halves with different seeds (kept in the cache). Printed per component and channel: the ratio of image means pbl / volpath (the
@@ -11,6 +12,10 @@ reference's own noise (a quarter of its halves' relMSE against each other) and t
 (a reference whose halves differ by more than a few % is not converged: its order's paths are heavy-tailed).
 With --bands N, the same ratios for single, double, multiple (alone and with bounced) and bounced over N bands of image
 rows, where order 3+ is at least 5 % of its brightest pixel: where in the image a bias sits (a boundary, a face).
+With --as-rendered, pbl renders the scene with its own [render.pbl] similarity transform (section 2 of docs/pbl.md;
+the peak's deflections off) and volpath renders the media after that same transform, so that a truncated peak is no
+scattering for both: pbl's own bias by order, apart from the transform's (without it pbl renders the media as given,
+similarity "none", whose layers are the true orders).
 A scene is a config name in configs/ or a scene file (benchmarks/scenes/ holds scenes that isolate one effect).
 Light that scattered in the medium, left it and came back from the scene (a table) is in pbl's bounced layer (the
 light samples' v_returned part): of order 2 and above, like the rest of that layer.
@@ -19,6 +24,7 @@ light samples' v_returned part): of order 2 and above, like the rest of that lay
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -27,6 +33,18 @@ from pbl_bench import ROOT, RENDER, _run, rel_mse, with_pbl  # noqa: E402
 
 ORDERS_RENDER = RENDER.replace("RenderOptions(spp=int(spp), seed=int(seed), resolution=res, **kw)",
                                "RenderOptions(spp=int(spp), seed=int(seed), resolution=res, orders=sys.argv[9], **kw)")
+# the same, the scene's media put through the similarity transform named by $PBVOL_BENCH_SIMILARITY (--as-rendered)
+TRANSFORMED_ORDERS_RENDER = r"""
+import os
+from dataclasses import replace
+import pbvol_cli.geometry.scene_build as scene_build
+from pbvol_cli.pointbased.similarity import TRANSFORMS
+_build = scene_build.build_scene
+def _transformed(*a, **k):
+    built = _build(*a, **k)
+    return replace(built, media=TRANSFORMS[os.environ["PBVOL_BENCH_SIMILARITY"]](built.media))
+scene_build.build_scene = _transformed
+""" + ORDERS_RENDER
 
 
 def main():
@@ -41,6 +59,8 @@ def main():
     ap.add_argument("--pbl-seed", type=int, default=1, help="pbl's seed (the references' are fixed)")
     ap.add_argument("--ref-spp", type=int, default=1024)
     ap.add_argument("--bands", type=int, default=0, help="also print the ratios over this many bands of rows")
+    ap.add_argument("--as-rendered", action="store_true", help="pbl with the scene's similarity transform, volpath "
+                    "on the transformed media")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
     args = ap.parse_args()
@@ -53,20 +73,29 @@ def main():
     for name in [s for s in args.scenes.split(",") if s]:
         scene = Path(name) if name.endswith(".toml") else ROOT / "configs" / f"{name}.toml"
         name = scene.stem
-        pbl_out = out / f"{name}_pbl.exr"
-        # the media as given: the similarity transform's layers are not the scattering orders
-        as_given = with_pbl(scene, out / "as_given", {"similarity": "none"})
-        _run(RENDER, as_given, pbl_out, "pbl", args.pbl_spp, args.pbl_seed, args.threads, res, args.cache)
+        similarity = "none"
+        if args.as_rendered:
+            import tomllib
+
+            similarity = tomllib.loads(scene.read_text()).get("render", {}).get("pbl", {}).get("similarity", "none")
+        tag = "" if similarity == "none" else f"_{similarity}"
+        pbl_out = out / f"{name}{tag}_pbl.exr"
+        # the media as given (a similarity transform's layers are not the scattering orders), or both methods on the
+        # transformed media (--as-rendered)
+        as_pbl = with_pbl(scene, out / ("as_rendered" if tag else "as_given"),
+                          {"similarity": similarity, "peak_deflections": False})
+        _run(RENDER, as_pbl, pbl_out, "pbl", args.pbl_spp, args.pbl_seed, args.threads, res, args.cache)
+        os.environ["PBVOL_BENCH_SIMILARITY"] = similarity
         layers = {k: v.astype(np.float64) for k, v in read_layers(pbl_out).items()}
         refs = {}
         for orders in ("1", "2", "3+"):
             halves = []
             for seed in (201, 202):
                 # references are kept (keyed by scene, size, spp, order, seed): delete them after changing a scene
-                o = out / f"{name}_{res}_{args.ref_spp}spp_vp_{orders.replace('+', 'p')}_{seed}.exr"
+                o = out / f"{name}{tag}_{res}_{args.ref_spp}spp_vp_{orders.replace('+', 'p')}_{seed}.exr"
                 if not o.exists():
-                    _run(ORDERS_RENDER, scene, o, "volpath", args.ref_spp // 2, seed, args.threads, res, args.cache,
-                         orders)
+                    _run(TRANSFORMED_ORDERS_RENDER if tag else ORDERS_RENDER, scene, o, "volpath",
+                         args.ref_spp // 2, seed, args.threads, res, args.cache, orders)
                 halves.append(read_exr(o)[0].astype(np.float64))
             refs[orders] = halves
         zero = np.zeros_like(layers["single"])
@@ -103,7 +132,8 @@ def print_bands(layers, refs, bands: int):
     bounced = layers.get("bounced", np.zeros_like(layers["single"]))
     pairs = [("single / 1", layers["single"], "1"), ("double / 2", layers["double"], "2"),
              ("multiple / 3+", layers["multiple"], "3+"),
-             ("bounced / 3+", bounced, "3+"), ("mult+bounced / 3+", layers["multiple"] + bounced, "3+")]
+             ("bounced / 3+", bounced, "3+"), ("mult+bounced / 3+", layers["multiple"] + bounced, "3+"),
+             ("2+ all / 2, 3+", layers["double"] + layers["multiple"] + bounced, ("2", "3+"))]
     print(f"  {'rows':<9} {'share of 3+':>11} " + " ".join(f"{p[0]:>17}" for p in pairs))
     total = sky[mask].sum()
     for band in np.array_split(np.arange(rows[0], rows[-1] + 1), min(bands, rows[-1] + 1 - rows[0])):
@@ -111,7 +141,8 @@ def print_bands(layers, refs, bands: int):
         m[band] = mask[band]
         if not m.any():
             continue
-        cells = [mine.sum(axis=2)[m].sum() / max(refs[o].sum(axis=2)[m].sum(), 1e-30) for _, mine, o in pairs]
+        cells = [mine.sum(axis=2)[m].sum() / max(sum(refs[k] for k in (o if isinstance(o, tuple) else (o,)))
+                                                 .sum(axis=2)[m].sum(), 1e-30) for _, mine, o in pairs]
         print(f"  {f'{band[0]}-{band[-1]}':<9} {sky[m].sum() / total:>11.3f} " + " ".join(f"{c:>17.3f}" for c in cells))
 
 
