@@ -459,6 +459,10 @@ class PblSettings(Strict):
                                   "cut_size's (the bumpy sphere at eight passes: "
                                   "2 against 8, a fifth less time, relMSE 0.00159 against 0.00150; docs/pbl.md, "
                                   "section 9)")
+    cut_roulette: Num = Field(0.01, ge=0, le=1, description="the light cut's nodes whose importance at a point is "
+                              "under this share of the cut's (and whose power is under five times it) are evaluated "
+                              "by Russian roulette, in proportion to the larger share, unbiased: most of a cut's "
+                              "nodes hold a hundredth of its light or less (0: every node evaluated)")
     clamp: Num = Field(0.02, ge=0, description="smallest radius a source's 1/r^2 is averaged over (double "
                          "scattering), scene units")
     max_split_depth: Int = Field(8, ge=1, le=32,

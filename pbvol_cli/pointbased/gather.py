@@ -22,18 +22,21 @@ from pbvol_cli.pointbased.single_scattering import single_scattering_at_points, 
 from pbvol_cli.pointbased.volume_samples import ENTRY_N, ENTRY_Q, EXIT_N, EXIT_Q, PLANE_COLS, Query, nearer_plane
 
 GatherSettings = namedtuple("GatherSettings", ["kmax", "cut_size", "clamp", "single", "double", "multiple",
-                                               "kmax_scattered", "kmax_diffuse", "cut_size_diffuse"])
+                                               "kmax_scattered", "kmax_diffuse", "cut_size_diffuse", "cut_roulette"],
+                            defaults=(0.0,))
 GatherSettings.__doc__ = """How a segment is evaluated: kmax points for single scattering, kmax_scattered for double
 and multiple (smooth along a ray), kmax_diffuse random points for every term after a diffuse bounce; the light cut's
-cut_size refinements (cut_size_diffuse after a diffuse bounce) and its clamp (scene units); which terms (single,
-double, multiple: bools)."""
+cut_size refinements (cut_size_diffuse after a diffuse bounce), its clamp (scene units) and the share of its
+importance below which a node is played by roulette (cut_roulette, light_cut._cut_estimate; 0: none); which terms
+(single, double, multiple: bools)."""
 LAYER_SINGLE, LAYER_DOUBLE, LAYER_MULTIPLE = 0, 1, 2  # out[ray, layer, channel]
 
 
 def gather_settings(pbl, terms=("single", "double", "multiple")) -> GatherSettings:
     """The camera paths' settings from a scene's [render.pbl] (config.PblSettings), for the given terms."""
     return GatherSettings(pbl.kmax, pbl.cut_size, pbl.clamp, "single" in terms, "double" in terms,
-                          "multiple" in terms, pbl.kmax_scattered, pbl.kmax_diffuse, pbl.cut_size_diffuse)
+                          "multiple" in terms, pbl.kmax_scattered, pbl.kmax_diffuse, pbl.cut_size_diffuse,
+                          float(pbl.cut_roulette))
 
 
 @njit(cache=True)
@@ -75,7 +78,8 @@ def _segment(i, pos, dirs, beta, tseg, rng, med, vs, settings, out, diffuse, pla
                 for c in range(4):
                     pplane[c] = planes[i, e + c]
                 double_multiple(vs, med, Query(px, py, pz, wx, wy, wz, pplane), cut, settings.clamp,
-                                do_d, do_m, o, o3, rng, i, settings.cut_size // MULTIPLE_CUT_SHARE)
+                                do_d, do_m, o, o3, rng, i, settings.cut_size // MULTIPLE_CUT_SHARE,
+                                settings.cut_roulette)
             for c in range(3):
                 w = beta[i, c] * math.exp(-(sig_a[c] + sig_s[c]) * d) / (pdf * n)
                 if comp == 0:

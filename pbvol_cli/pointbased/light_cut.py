@@ -28,6 +28,8 @@ from pbvol_cli.pointbased.sources import NEAR_ALONG, sample_terms
 CUT_CAP = 4096  # nodes a cut may hold at once (a node that would overflow it is used as it is)
 MULTIPLE_CUT_SHARE = 4  # multiple scattering (smooth) uses the cut after cut_size / 4 refinements
 LEAF_SCRATCH = 64  # a leaf's sample importances kept while its sample is drawn (leaves hold LEAF_SIZE, or a few more)
+ROULETTE_POWER = 5.0  # a cut's node is kept surely where its power is at least this many times `roulette` of the
+# cut's: a node the importance misjudges (near P) is then weighted by at most 1 / (its power share / this x roulette)
 LINE_POINTS = 4  # points along a segment long next to its distance from P where its importance is judged
 # a node whose box holds P is judged no nearer than a quarter of its extent or half the rms distance of its power
 # from P, whichever is nearer (_node_importance)
@@ -245,27 +247,58 @@ def _representative(nd, vs, q, kind, g, st_min, ext_min2, u, imp, pws):
     return last, 1.0 / (prob * last_w)
 
 
+@njit(inline="always", cache=True)
+def _roulette_odds(lobes, nd, q, kind, g, st_min, power_share, imp_total, power_total, roulette):
+    """The probability that the cut's node nd (power_share: its power, channels summed) is evaluated: 1 where its
+    _node_importance at q is at least `roulette` of the cut's total imp_total or its power at least
+    ROULETTE_POWER x roulette of power_total; below both, the larger of the two shares over its threshold."""
+    if roulette <= 0.0:
+        return 1.0
+    odds = power_share / (ROULETTE_POWER * roulette * power_total) if power_total > 0.0 else 1.0
+    if imp_total > 0.0 and odds < 1.0:
+        odds = max(odds, _node_importance(lobes, nd, q, kind, g, st_min) / (roulette * imp_total))
+    return min(odds, 1.0)
+
+
 @njit(cache=True)
-def _cut_estimate(heap, hn, node_of, vs, med, q, rclamp, do_double, do_multiple, out_d, out_m, rng, ri, split):
+def _cut_estimate(heap, hn, node_of, vs, med, q, rclamp, do_double, do_multiple, out_d, out_m, rng, ri, split,
+                  roulette):
     """Each node of the cut contributes one representative sample, weighted by 1 / its probability (unbiased for
     the node's sum): drawn by importance toward P, by double scattering's kernel for either term (split:
     near_weight's; a far part needs no importance closer than half its radius; drawn by power, the multiple
-    term's rare sources near P came with a node's whole weight). Returns the samples evaluated."""
+    term's rare sources near P came with a node's whole weight). With roulette > 0 the cut's dim nodes are played
+    by Russian roulette (_roulette_odds), a kept one weighted by 1 / its odds: most of a cut's nodes hold a
+    hundredth of its light or less (lobes of g = 0.9 turned away from P, the body's far side), and each cost a
+    descent and a sample's terms. Returns the samples evaluated."""
     power = vs.tree[5]
+    lobes = vs.lobes
     sig_a, sig_s = med.sigma_a, med.sigma_s
     st_min = min(sig_a[0] + sig_s[0], min(sig_a[1] + sig_s[1], sig_a[2] + sig_s[2]))
     od = np.zeros(3)
     om = np.zeros(3)
     imp, pws = np.empty(LEAF_SCRATCH), np.empty(8)  # _representative's scratch
+    imp_total, power_total = 0.0, 0.0
+    if roulette > 0.0:
+        for h in range(hn):
+            nd = node_of[heap[h]]
+            pw = power[nd, 0] + power[nd, 1] + power[nd, 2]
+            if pw > 0.0:
+                power_total += pw
+                imp_total += _node_importance(lobes, nd, q, med.phase, med.g, st_min)
     n = 0
     for h in range(hn):
         nd = node_of[heap[h]]
-        if power[nd, 0] + power[nd, 1] + power[nd, 2] <= 0.0:
+        pw = power[nd, 0] + power[nd, 1] + power[nd, 2]
+        if pw <= 0.0:
+            continue
+        odds = _roulette_odds(lobes, nd, q, med.phase, med.g, st_min, pw, imp_total, power_total, roulette)
+        if odds < 1.0 and rand(rng, ri) >= odds:
             continue
         i, scale = _representative(nd, vs, q, med.phase, med.g, st_min, 0.25 * split * split, rand(rng, ri), imp,
                                    pws)
         if i < 0:
             continue
+        scale /= odds
         for c in range(3):
             od[c] = 0.0
             om[c] = 0.0
@@ -309,13 +342,15 @@ def _near_field(vs, med, q, rclamp, out_d, out_m):
 
 
 @njit(cache=True)
-def double_multiple(vs, med, q, cut_size, rclamp, do_double, do_multiple, out_d, out_m, rng, ri, ms_cut=-1):
+def double_multiple(vs, med, q, cut_size, rclamp, do_double, do_multiple, out_d, out_m, rng, ri, ms_cut=-1,
+                    roulette=0.0):
     """Adds double (out_d) and multiple (out_m) scattering at q (Query) from the volume samples vs (VolumeSamples)
     of med (Medium), by the stochastic light cut of the module docstring; rclamp: the smallest extent of a
     source's ball (scene units). With vs.r_near > 0 double scattering's kernel is split (sources.near_weight):
     its part within r_near of P is summed over every sample there, the cut takes the rest. Multiple scattering
     takes the cut after ms_cut refinements (-1: cut_size / MULTIPLE_CUT_SHARE; double's cut is then at least
-    that). rng[ri] is the random state. Returns the number of samples evaluated (the cost)."""
+    that). roulette: the share of the cut's importance below which a node is played by roulette (_cut_estimate; 0:
+every node evaluated). rng[ri] is the random state. Returns the number of samples evaluated (the cost)."""
     tree = vs.tree
     order, lo, hi, power = tree[0], tree[1], tree[2], tree[5]
     first_child, n_children, start, end = tree[6], tree[7], tree[8], tree[9]
@@ -342,7 +377,7 @@ def double_multiple(vs, med, q, cut_size, rclamp, do_double, do_multiple, out_d,
     while hn > 0:
         if ms_pending and n_refined >= ms_cut:
             n_eval += _cut_estimate(heap, hn, node_of, vs, med, q, rclamp, as_runtime(False), as_runtime(True),
-                                    out_d, out_m, rng, ri, 0.0)
+                                    out_d, out_m, rng, ri, 0.0, roulette)
             ms_pending = False
         if (n_refined >= cut_size or not do_double) and not ms_pending:
             break
@@ -371,5 +406,5 @@ def double_multiple(vs, med, q, cut_size, rclamp, do_double, do_multiple, out_d,
             key[e] = _node_priority(ch, lo, hi, power, q.x, q.y, q.z, st_min)
             hn = _heap_push(heap, hn, key, e)
     n_eval += _cut_estimate(heap, hn, node_of, vs, med, q, rclamp, do_double, ms_pending, out_d, out_m, rng, ri,
-                            split)
+                            split, roulette)
     return n_eval

@@ -138,7 +138,7 @@ def _reflected(built, m: int, lit: SampleSet, back, tables: tuple, pbl, seed: in
              if len(back.v_len) else None)
     # the light arriving at the boundary points: one point per gather ray for each estimator (the reflected
     # light is smooth; the boundary points average it)
-    gather = GatherSettings(1, pbl.cut_size, pbl.clamp, True, True, True, 1, 1, pbl.cut_size)
+    gather = GatherSettings(1, pbl.cut_size, pbl.clamp, True, True, True, 1, 1, pbl.cut_size, float(pbl.cut_roulette))
     caster = TriangleCaster(built.vertices, built.faces, threads)
     pool = ThreadPoolExecutor(threads) if threads > 1 else None
     try:

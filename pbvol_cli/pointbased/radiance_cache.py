@@ -163,7 +163,8 @@ def _evaluate(reps, terms, pts, rng, med, vs, settings, do_single, values):
         if dd or mm:
             o[:] = 0.0
             o3[:] = 0.0
-            double_multiple(vs, med, q, settings.cut_size, settings.clamp, dd, mm, o, o3, rng, pts.owner[r])
+            double_multiple(vs, med, q, settings.cut_size, settings.clamp, dd, mm, o, o3, rng, pts.owner[r], -1,
+                            settings.cut_roulette)
             for c in range(3):
                 values[j, 1, c] = o[c]
                 values[j, 2, c] = o3[c]

@@ -309,3 +309,53 @@ def exact_double(centre, d, scat, P, w, sig_s, sig_a, g):
         f = phase_eval(1, g, m @ w) * phase_eval(1, g, d[i] @ m)
         exact += sig_s * scat[i] * f * np.array([attenuated_inv_r2_ball(dist, 0.02, st) for st in sig_s + sig_a])
     return exact
+
+
+@pytest.mark.parametrize("do_double", [True, False])
+def test_the_cuts_dim_nodes_played_by_roulette_keep_it_unbiased_and_cost_less(do_double):
+    """With roulette 0.05 the cut's nodes under 5 % of its importance at P (and 25 % of its power) are evaluated
+    at odds in proportion to their share and weighted by the inverse: double and multiple scattering still
+    average to the cut refined to every leaf (4 standard errors over 4000 estimates), for g = 0.9 lobes in all
+    directions around P, where most nodes' lobes turn away from it, while fewer samples are evaluated. roulette 0
+    is the plain cut, bit for bit (no random number drawn)."""
+    lay = Layout(extent=10.0, n_rho=16, n_z=32, n_theta=9, n_phi=9, kill_radius=20.0)
+    table, _ = build_table(0.95, 0.9, 1, TableSettings(particles=20000, layout=lay, sh_order=8))
+    rng = np.random.default_rng(21)
+    n = 500
+    P, w = np.array([0.2, -0.1, 0.3]), np.array([0.0, 0.6, 0.8])
+    offset, d = _cloud(rng, n, 0.3, 4.0)
+    centre = P + offset
+    length, rb = np.full(n, 0.05), np.full(n, 0.02)
+    start = centre - 0.5 * length[:, None] * d
+    scat = rng.random((n, 3)) + 0.1
+    end = start + length[:, None] * d
+    tree = build_octree(centre, np.minimum(start, end) - rb[:, None], np.maximum(start, end) + rb[:, None], d,
+                        scat).arrays()
+    no_plane = np.tile([0.0, 0.0, 1.0, np.inf] * 2, (n, 1))
+    vs = VolumeSamples(tree, start, d, length, scat, np.pi * rb ** 2, centre, scat, rb, np.zeros(n, np.int64),
+                       no_plane, (table.render_args(),) * 3, 0.0, node_lobes(tree))
+    med, q = Medium(np.full(3, 0.05), np.full(3, 0.95), 1, 0.9), Query(*P, *w, NO_PLANE)
+    k = 0 if do_double else 1
+    exact = np.zeros((2, 3))
+    double_multiple(vs, med, q, 4 * len(tree[1]), 0.02, do_double, not do_double, exact[0], exact[1],
+                    np.array([1], np.uint64), 0, 4 * len(tree[1]))
+    assert np.all(exact[k] > 0)
+    for roulette in (0.0, 0.05):
+        state = np.array([5], np.uint64)
+        runs, cost = np.zeros((4000, 2, 3)), np.zeros(4000)
+        for j in range(len(runs)):
+            cost[j] = double_multiple(vs, med, q, 8, 0.02, do_double, not do_double, runs[j, 0], runs[j, 1], state, 0,
+                                      -1, roulette)
+        mean, se = runs[:, k].mean(0), runs[:, k].std(0) / np.sqrt(len(runs))
+        assert np.all(np.abs(mean - exact[k]) < 4 * se), (roulette, mean, exact[k], se)
+        if roulette == 0.0:
+            plain_cost = cost.mean()
+    assert cost.mean() < 0.8 * plain_cost, (cost.mean(), plain_cost)
+    # roulette 0: the cut as without it, the same estimate and the same random state after
+    for roulette in (None, 0.0):
+        st, est = np.array([5], np.uint64), np.zeros((2, 3))
+        args = (vs, med, q, 8, 0.02, do_double, not do_double, est[0], est[1], st, 0)
+        double_multiple(*args) if roulette is None else double_multiple(*args, -1, roulette)
+        if roulette is None:
+            plain, plain_state = est, st[0]
+    assert np.array_equal(est, plain) and st[0] == plain_state
