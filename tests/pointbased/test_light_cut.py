@@ -311,13 +311,12 @@ def exact_double(centre, d, scat, P, w, sig_s, sig_a, g):
     return exact
 
 
-@pytest.mark.parametrize("do_double", [True, False])
-def test_the_cuts_dim_nodes_played_by_roulette_keep_it_unbiased_and_cost_less(do_double):
-    """With roulette 0.05 the cut's nodes under 5 % of its importance at P (and 25 % of its power) are evaluated
-    at odds in proportion to their share and weighted by the inverse: double and multiple scattering still
-    average to the cut refined to every leaf (4 standard errors over 4000 estimates), for g = 0.9 lobes in all
-    directions around P, where most nodes' lobes turn away from it, while fewer samples are evaluated. roulette 0
-    is the plain cut, bit for bit (no random number drawn)."""
+def test_the_cuts_dim_nodes_played_by_roulette_keep_it_unbiased_and_cost_less():
+    """With roulette 0.05 double scattering's cut evaluates its nodes under 5 % of its importance at P (and 25 % of
+    its power) at odds in proportion to their share, weighted by the inverse: it still averages to the cut refined
+    to every leaf (4 standard errors over 4000 estimates), for g = 0.9 lobes in all directions around P, where most
+    nodes' lobes turn away from it, while a fifth fewer samples are evaluated. The multiple term's cut keeps every
+    node (the same estimates, bit for bit), and roulette 0 is the plain cut."""
     lay = Layout(extent=10.0, n_rho=16, n_z=32, n_theta=9, n_phi=9, kill_radius=20.0)
     table, _ = build_table(0.95, 0.9, 1, TableSettings(particles=20000, layout=lay, sh_order=8))
     rng = np.random.default_rng(21)
@@ -335,27 +334,26 @@ def test_the_cuts_dim_nodes_played_by_roulette_keep_it_unbiased_and_cost_less(do
     vs = VolumeSamples(tree, start, d, length, scat, np.pi * rb ** 2, centre, scat, rb, np.zeros(n, np.int64),
                        no_plane, (table.render_args(),) * 3, 0.0, node_lobes(tree))
     med, q = Medium(np.full(3, 0.05), np.full(3, 0.95), 1, 0.9), Query(*P, *w, NO_PLANE)
-    k = 0 if do_double else 1
-    exact = np.zeros((2, 3))
-    double_multiple(vs, med, q, 4 * len(tree[1]), 0.02, do_double, not do_double, exact[0], exact[1],
-                    np.array([1], np.uint64), 0, 4 * len(tree[1]))
-    assert np.all(exact[k] > 0)
+    exact = np.zeros(3)
+    double_multiple(vs, med, q, 4 * len(tree[1]), 0.02, True, False, exact, np.zeros(3), np.array([1], np.uint64), 0)
+    assert np.all(exact > 0)
+    runs, cost = {}, {}
     for roulette in (0.0, 0.05):
         state = np.array([5], np.uint64)
-        runs, cost = np.zeros((4000, 2, 3)), np.zeros(4000)
-        for j in range(len(runs)):
-            cost[j] = double_multiple(vs, med, q, 8, 0.02, do_double, not do_double, runs[j, 0], runs[j, 1], state, 0,
-                                      -1, roulette)
-        mean, se = runs[:, k].mean(0), runs[:, k].std(0) / np.sqrt(len(runs))
-        assert np.all(np.abs(mean - exact[k]) < 4 * se), (roulette, mean, exact[k], se)
-        if roulette == 0.0:
-            plain_cost = cost.mean()
-    assert cost.mean() < 0.8 * plain_cost, (cost.mean(), plain_cost)
-    # roulette 0: the cut as without it, the same estimate and the same random state after
-    for roulette in (None, 0.0):
-        st, est = np.array([5], np.uint64), np.zeros((2, 3))
-        args = (vs, med, q, 8, 0.02, do_double, not do_double, est[0], est[1], st, 0)
+        runs[roulette], cost[roulette] = np.zeros((4000, 2, 3)), np.zeros(4000)
+        for j in range(4000):
+            cost[roulette][j] = double_multiple(vs, med, q, 8, 0.02, True, j % 2 == 0, runs[roulette][j, 0],
+                                                runs[roulette][j, 1], state, 0, -1, roulette)
+        est = runs[roulette][:, 0]
+        mean, se = est.mean(0), est.std(0) / np.sqrt(len(est))
+        assert np.all(np.abs(mean - exact) < 4 * se), (roulette, mean, exact, se)
+    assert cost[0.05].mean() < 0.8 * cost[0.0].mean(), (cost[0.05].mean(), cost[0.0].mean())
+    assert not np.array_equal(runs[0.05][:, 0], runs[0.0][:, 0])
+    # the multiple term alone: every node of its cut, whatever roulette
+    for roulette in (None, 0.0, 0.05):
+        st, om = np.array([5], np.uint64), np.zeros(3)
+        args = (vs, med, q, 8, 0.02, False, True, np.zeros(3), om, st, 0)
         double_multiple(*args) if roulette is None else double_multiple(*args, -1, roulette)
         if roulette is None:
-            plain, plain_state = est, st[0]
-    assert np.array_equal(est, plain) and st[0] == plain_state
+            plain, plain_state = om, st[0]
+        assert np.all(om > 0) and np.array_equal(om, plain) and st[0] == plain_state
