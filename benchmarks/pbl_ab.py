@@ -29,7 +29,7 @@ def main():
     import numpy as np
     import tomli_w
 
-    from pbl_bench import pbl_overrides
+    from pbl_bench import files_made_absolute, pbl_overrides
 
     from pbvol_cli.imageio import read_exr, read_layers
     from pbvol_cli.pipeline.render import RenderOptions, render_scene
@@ -44,7 +44,7 @@ def main():
     ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
     args = ap.parse_args()
     path = Path(args.scene) if args.scene.endswith(".toml") else ROOT / "configs" / f"{args.scene}.toml"
-    base = tomllib.loads(path.read_text())
+    base = files_made_absolute(tomllib.loads(path.read_text()), path.parent)
     seeds = [int(s) for s in args.seeds.split(",")]
     tmp = Path(tempfile.mkdtemp())
     res = (args.resolution, args.resolution)

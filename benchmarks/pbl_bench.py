@@ -90,17 +90,28 @@ def pbl_overrides(text: str) -> dict:
     return dict((k.strip(), setting_value(v.strip())) for k, v in (kv.split("=") for kv in text.split(",") if kv))
 
 
+def files_made_absolute(data, folder: Path):
+    """The scene data with every `file` field (a mesh, a density grid: relative to the scene file) made absolute
+    from folder, the scene's own, so that a copy written elsewhere still finds them."""
+    if isinstance(data, dict):
+        return {k: (str((folder / v).resolve()) if k == "file" and isinstance(v, str) else
+                    files_made_absolute(v, folder)) for k, v in data.items()}
+    if isinstance(data, list):
+        return [files_made_absolute(v, folder) for v in data]
+    return data
+
+
 def with_pbl(scene: Path, folder: Path, overrides: dict) -> Path:
     """The scene with its [render.pbl] settings overridden, written as folder/<its file name> (the same name: it
-    names the cached references, which do not depend on [render.pbl]); the scene itself without overrides. Files
-    the scene names by a relative path are not rewritten: for scenes without any, as the example scenes here."""
+    names the cached references, which do not depend on [render.pbl]), the files it names made absolute; the
+    scene itself without overrides."""
     import tomllib
 
     import tomli_w
 
     if not overrides:
         return scene
-    data = tomllib.loads(scene.read_text())
+    data = files_made_absolute(tomllib.loads(scene.read_text()), scene.parent)
     data.setdefault("render", {}).setdefault("pbl", {}).update(overrides)
     folder.mkdir(parents=True, exist_ok=True)
     out = folder / scene.name
