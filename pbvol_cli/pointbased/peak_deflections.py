@@ -61,16 +61,14 @@ def _draw_one(i, dirs, tmax, medium, turns, rates, media, rng, d_out, dir_out, s
     # (a ray that meets nothing has left its medium through a crack of the mesh: it is not turned, but ends as such)
     if m < 0 or turns[i] >= MAX_TURNS or rates[m] <= 0.0 or not math.isfinite(tmax[i]):
         return
-    st = np.empty(1, np.uint64)
-    st[0] = mix64(rng[i] ^ DEFLECTION_STREAM)
-    d = -math.log(1.0 - rand(st, 0)) / rates[m]
+    state_out[i] = mix64(rng[i] ^ DEFLECTION_STREAM)  # (the draws advance it in place: no array a ray)
+    d = -math.log(1.0 - rand(state_out, i)) / rates[m]
     if not d < tmax[i]:
         return
-    cos_t = truncated_peak_cos(media[m, MED_G], rand(st, 0))
-    w = around(cos_t, 2.0 * math.pi * rand(st, 0), dirs[i, 0], dirs[i, 1], dirs[i, 2])
+    cos_t = truncated_peak_cos(media[m, MED_G], rand(state_out, i))
+    w = around(cos_t, 2.0 * math.pi * rand(state_out, i), dirs[i, 0], dirs[i, 1], dirs[i, 2])
     d_out[i] = d
     dir_out[i, 0], dir_out[i, 1], dir_out[i, 2] = w[0], w[1], w[2]
-    state_out[i] = st[0]
     turned[i] = True
 
 
