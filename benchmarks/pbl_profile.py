@@ -8,9 +8,9 @@ Prints the render's time and, per stage, its total seconds over the passes and h
 the bounced samples' evaluation along camera segments (per point: what is neither shared nor deferred; at a batch's
 points: single scattering, deferred to the batch's end; shared: the smooth terms evaluated once per bin), the light
 side of a pass (placing a new light-sample set, the octrees over its volume samples, the bounced samples), the
-camera paths' surface work. A warm-up render of two passes first, so that compiling is not counted. With --repeat N
-the render is repeated N times in the process and each stage's median printed (stages of a few milliseconds move
-by a third from render to render).
+camera paths' surface work and their draws of the truncated peak's deflections. A warm-up render of two passes
+first, so that compiling is not counted. With --repeat N the render is repeated N times in the process and each
+stage's median printed (stages of a few milliseconds move by a third from render to render).
 """
 
 from __future__ import annotations
@@ -69,6 +69,7 @@ def main():
     timed(camera_pass, "_gather_caustics", "caustics: gathered at the camera paths' diffuse hits")
     for name in ("closest_surface_hits", "light_hits", "visible", "_interact", "segment_planes"):
         timed(camera_pass, name, "camera paths: hits, shadow rays, interfaces")
+    timed(camera_pass, "draw_deflections", "camera paths: the truncated peak's deflections drawn")
     opts = dict(method="pbl", threads=args.threads, cache_dir=args.cache, quiet=True)
     (ROOT / "bench-out").mkdir(exist_ok=True)
     # (two passes: a later pass's new light samples compile kernels of their own)
