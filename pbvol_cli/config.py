@@ -499,11 +499,6 @@ class PblSettings(Strict):
                                 description="boundary points gathering the scattered light that the "
                                 "medium's boundary reflects back (sec. 3.10, the bounced layer)")
     bounce_generations: Int = Field(3, ge=0, le=64, description="reflections of scattered light followed (0: none)")
-    bounced_diffuse_share: Num = Field(1.0, gt=0, le=1, description="the share of the camera rays after a diffuse "
-                                       "bounce that evaluate the bounced light (point by point, wide kernels: its "
-                                       "single scattering there took a tenth of the bumpy sphere's pass for 1.4 % "
-                                       "of its image), weighted by its inverse: unbiased (the bumpy sphere sets "
-                                       "0.25; docs/pbl.md, section 12)")
     bounce_near_sources: Num = Field(0.0, ge=0, le=0.95, description="share of the boundary points shot from the "
                                      "scattered light's sources instead of spread as blue noise, in a convex "
                                      "medium (others keep blue noise): steadier generations, the wax sphere's "

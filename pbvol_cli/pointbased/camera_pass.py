@@ -862,8 +862,7 @@ def _trace_batch(bs, caster, pool, threads, media_data, seed, done, pixels, samp
                         (layers["bounced"],) * 3, pixel=pixel)  # (its three terms make the bounced layer)
                     _measure_shares(bins, pool, threads, state, evb)
                     eval_segments(pool, threads, evb, pos, dirs, beta_b, tev, rng, med, bounced.kernel, settings_b,
-                                  cb3, state >> 2, planes, cache_b, roulette_rng, q_b,
-                                  p_diffuse * pbl.bounced_diffuse_share, defer)
+                                  cb3, state >> 2, planes, cache_b, roulette_rng, q_b, p_diffuse, defer)
                     contrib[evb, LAYER_BOUNCED] += cb3[evb, 0] + cb3[evb, 1] + cb3[evb, 2]  # (the rows it wrote)
             if entry is not None:
                 _add_entry_term(entry, int(m), sub[evm[sub] & (entered[sub] > 0)], pos, beta, kpaths, entered,

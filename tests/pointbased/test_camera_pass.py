@@ -305,23 +305,6 @@ def test_a_coarser_cut_after_a_diffuse_bounce_keeps_every_smooth_layers_mean_in_
         assert mb.mean() > 0 and abs(ma.mean() - mb.mean()) < 4 * se, (name, ma.mean(), mb.mean(), se)
 
 
-def test_a_share_of_the_points_after_a_diffuse_bounce_evaluating_the_bounced_light_keeps_its_mean(tmp_path):
-    """[render.pbl] bounced_diffuse_share: a quarter of the camera rays after a diffuse bounce evaluate the bounced
-    light, weighted 4x. The test sphere on a diffuse floor, six seeds each: other images (the setting acts), the
-    bounced layer's mean within 4 standard errors of every ray's, and the other layers' means as they were."""
-    scene = _water_sphere_on_a_floor()
-    runs = {}
-    for share in (1.0, 0.25):
-        scene["render"]["pbl"]["bounced_diffuse_share"] = share
-        runs[share] = smooth_layers(tmp_path, scene, range(6))
-    assert not np.array_equal(runs[1.0][:, 2], runs[0.25][:, 2])
-    for j, name in enumerate(("double", "multiple", "bounced")):
-        ma, mb = runs[1.0][:, j].mean((1, 2, 3)), runs[0.25][:, j].mean((1, 2, 3))
-        se = math.hypot(ma.std(ddof=1), mb.std(ddof=1)) / math.sqrt(len(ma))
-        print(name, "every ray", ma.mean(), "a quarter", mb.mean(), "se", se)
-        assert mb.mean() > 0 and abs(ma.mean() - mb.mean()) < 4 * se, (name, ma.mean(), mb.mean(), se)
-
-
 def test_pass_paths_run_sample_by_sample_and_continue_each_pixels_count():
     k = np.array([3, 1, 2])
     pixels, samples, ranks = pass_paths(k, np.array([10, 0, 5]))
